@@ -1,0 +1,225 @@
+"""Data: the paper's test functions and the grid of section 5 (eq. 18).
+
+The five trivariate functions of Table 1 are addressable by number (1-5) or by a
+short name.  :func:`sample_grid` evaluates one of them on the
+``(n + 1)^3`` grid over ``[-1, 1]^3``
+
+.. math::  x_{i,j,k} = ((2i - n)/n, (2j - n)/n, (2k - n)/n), \\quad i, j, k = 0..n
+
+and keeps the integer coordinates ``(i, j, k)`` beside the float ones, so that
+every geometric predicate on grid data can run in exact integer arithmetic.
+
+Point numbering is C order over ``(i, j, k)``: ``index = (i (n+1) + j) (n+1) + k``
+(``i`` is x and varies slowest).  This is the "index" tie order of the ranking.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .errors_input import InputError
+
+__all__ = [
+    "FUNCTIONS",
+    "PointData",
+    "resolve_function",
+    "evaluate_function",
+    "sample_grid",
+    "scattered",
+]
+
+
+def _f1(x, y, z):
+    return 0.4 * (x**2 + y**2 + z**2)
+
+
+def _f2(x, y, z):
+    return 0.4 * (x**2 - y**2 - z**2)
+
+
+def _f3(x, y, z):
+    return 0.15 * (x**3 + 2 * x**2 * y - x * z**2 + 2 * y**2)
+
+
+def _f4(x, y, z):
+    return np.exp(-0.5 * (x**2 + y**2 + z**2))
+
+
+def _f5(x, y, z):
+    return 0.1 * (np.cos(np.pi * x) + np.cos(np.pi * y) + np.cos(np.pi * z))
+
+
+#: number -> (short name, expression as printed in Table 1, callable)
+FUNCTIONS = {
+    1: ("quadratic", "0.4(x^2 + y^2 + z^2)", _f1),
+    2: ("saddle", "0.4(x^2 - y^2 - z^2)", _f2),
+    3: ("cubic", "0.15(x^3 + 2x^2y - xz^2 + 2y^2)", _f3),
+    4: ("exponential", "exp(-0.5(x^2 + y^2 + z^2))", _f4),
+    5: ("trigonometric", "0.1(cos(pi x) + cos(pi y) + cos(pi z))", _f5),
+}
+_BY_NAME = {name: num for num, (name, _, _) in FUNCTIONS.items()}
+
+
+def resolve_function(function) -> int:
+    """Return the Table-1 number (1-5) of ``function`` given as number or short name.
+
+    Raises
+    ------
+    InputError
+        For an unknown function, naming the bad value and the valid choices.
+    """
+    key = function
+    if isinstance(key, str):
+        s = key.strip().lower()
+        if s in _BY_NAME:
+            return _BY_NAME[s]
+        if s.lstrip("f").isdigit():
+            key = int(s.lstrip("f"))
+    if isinstance(key, (int, np.integer)) and not isinstance(key, bool) and int(key) in FUNCTIONS:
+        return int(key)
+    choices = ", ".join(f"{k} ({v[0]})" for k, v in FUNCTIONS.items())
+    raise InputError(f"unknown function {function!r}: choose one of {choices}")
+
+
+def evaluate_function(function, x, y, z):
+    """Evaluate Table-1 function ``function`` (number or name) at arrays x, y, z."""
+    return FUNCTIONS[resolve_function(function)][2](np.asarray(x, float), np.asarray(y, float),
+                                                    np.asarray(z, float))
+
+
+@dataclass
+class PointData:
+    """Trivariate data (x, y, z, f) of eq. (1).
+
+    Attributes
+    ----------
+    points : (N, 3) float64
+        Coordinates ``x_i``.
+    values : (N,) float64
+        Function values ``f_i``.
+    ijk : (N, 3) int64 or None
+        Integer grid coordinates when the data lie on a regular grid; then all
+        predicates are exact integer arithmetic and ``points = origin + ijk * spacing``.
+    shape : tuple of 3 ints or None
+        Grid dimensions (number of points per axis) for grid data.
+    origin, spacing : (3,) float64 or None
+        Physical placement of a grid.
+    name : str
+        A label used in output tables (function number or file stem).
+    """
+
+    points: np.ndarray
+    values: np.ndarray
+    ijk: np.ndarray | None = None
+    shape: tuple | None = None
+    origin: np.ndarray | None = None
+    spacing: np.ndarray | None = None
+    name: str = "data"
+    meta: dict = field(default_factory=dict)
+
+    @property
+    def is_grid(self) -> bool:
+        return self.ijk is not None
+
+    @property
+    def n_points(self) -> int:
+        return int(self.values.shape[0])
+
+    def interior_mask(self) -> np.ndarray:
+        """Points not on the domain boundary (the starred column of Table 1).
+
+        For a grid these are the points with every integer coordinate strictly
+        between 0 and the last index: ``(n - 1)^3`` of them on an ``(n + 1)^3`` grid.
+        For scattered data it is computed from the convex hull (see
+        :func:`trivsel.triangulation.hull_boundary_mask`).
+        """
+        if self.is_grid:
+            hi = np.asarray(self.shape) - 1
+            return np.all((self.ijk > 0) & (self.ijk < hi), axis=1)
+        from .triangulation import hull_boundary_mask
+
+        return ~hull_boundary_mask(self.points)
+
+
+def sample_grid(function, n: int = 16) -> PointData:
+    """Sample Table-1 function ``function`` on the ``(n+1)^3`` grid of eq. (18).
+
+    Parameters
+    ----------
+    function : int or str
+        1-5 or one of ``quadratic, saddle, cubic, exponential, trigonometric``.
+    n : int
+        Number of grid intervals per axis (``n >= 2``); the paper uses ``n = 16``.
+    """
+    num = resolve_function(function)
+    if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
+        raise InputError(f"grid resolution n must be an integer >= 2, got {n!r}")
+    n = int(n)
+    idx = np.arange(n + 1)
+    ii, jj, kk = np.meshgrid(idx, idx, idx, indexing="ij")
+    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1).astype(np.int64)
+    spacing = np.full(3, 2.0 / n)
+    origin = np.full(3, -1.0)
+    points = (2.0 * ijk - n) / n
+    values = FUNCTIONS[num][2](points[:, 0], points[:, 1], points[:, 2]).astype(float)
+    return PointData(points=points, values=values, ijk=ijk, shape=(n + 1,) * 3,
+                     origin=origin, spacing=spacing, name=str(num),
+                     meta={"function": num, "n": n})
+
+
+def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), name="data"):
+    """Wrap a 3-D array of samples (indexed ``[i, j, k]`` = x, y, z) as grid data."""
+    v = np.asarray(values3d, dtype=float)
+    if v.ndim != 3:
+        raise InputError(f"grid values must be a 3-D array, got shape {v.shape}")
+    if min(v.shape) < 2:
+        raise InputError(f"grid needs at least 2 points per axis, got shape {v.shape}")
+    if not np.all(np.isfinite(v)):
+        bad = np.argwhere(~np.isfinite(v))[0]
+        raise InputError(f"non-finite value {v[tuple(bad)]} at grid index {tuple(int(b) for b in bad)}")
+    origin = np.asarray(origin, float)
+    spacing = np.asarray(spacing, float)
+    if np.any(spacing <= 0) or not np.all(np.isfinite(spacing)):
+        raise InputError(f"grid spacing must be positive and finite, got {tuple(spacing)}")
+    idx = [np.arange(s) for s in v.shape]
+    ii, jj, kk = np.meshgrid(*idx, indexing="ij")
+    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1).astype(np.int64)
+    points = origin + ijk * spacing
+    return PointData(points=points, values=v.ravel().copy(), ijk=ijk, shape=tuple(v.shape),
+                     origin=origin, spacing=spacing, name=name)
+
+
+def scattered(points, values, name="data") -> PointData:
+    """Validate scattered input (points ``N x 3`` and ``N`` values).
+
+    Rejects NaN/inf, wrong shapes, duplicate points, fewer than 5 points and
+    point sets that do not span 3-D space (all coplanar), each with a one-line
+    :class:`~trivsel.errors_input.InputError` naming the bad value.
+    """
+    p = np.asarray(points, dtype=float)
+    f = np.asarray(values, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"points must have shape (N, 3), got {p.shape}")
+    if f.shape != (p.shape[0],):
+        raise InputError(f"values must have shape ({p.shape[0]},) to match the points, got {f.shape}")
+    if p.shape[0] < 5:
+        raise InputError(f"too few points: need at least 5 for a 3-D triangulation, got {p.shape[0]}")
+    if not np.all(np.isfinite(p)):
+        row = int(np.argwhere(~np.isfinite(p))[0, 0])
+        raise InputError(f"non-finite coordinate in point {row}: {tuple(p[row])}")
+    if not np.all(np.isfinite(f)):
+        row = int(np.argwhere(~np.isfinite(f))[0, 0])
+        raise InputError(f"non-finite value {f[row]} at point {row}")
+    _, first, counts = np.unique(p, axis=0, return_index=True, return_counts=True)
+    if np.any(counts > 1):
+        dup = p[first[np.argmax(counts > 1)]]
+        rows = np.flatnonzero(np.all(p == dup, axis=1))
+        raise InputError(f"duplicate point {tuple(dup)} at rows {rows.tolist()}")
+    centred = p - p.mean(axis=0)
+    sv = np.linalg.svd(centred, compute_uv=False)
+    if sv[-1] <= 1e-12 * max(sv[0], 1e-300):
+        raise InputError(f"points are coplanar (or collinear): singular values {np.round(sv, 12).tolist()}; "
+                         "a tetrahedral mesh needs points spanning 3-D space")
+    return PointData(points=p, values=f, name=name)

@@ -1,0 +1,196 @@
+"""Initial triangulation and boundary (sections 1 and 3, Definition 1).
+
+* Grids: every cube ``{x_{i+I, j+J, k+K} | I, J, K in {0, 1}}`` is split into six
+  tetrahedra around its main diagonal (the Kuhn/Freudenthal split), which is a
+  Delaunay triangulation of the grid points (section 5).
+* Scattered points: :class:`scipy.spatial.Delaunay`.
+
+Tetrahedra are index quadruples (eq. 3), always stored positively oriented:
+``orient3d(a, b, c, d) = det[b - a, c - a, d - a] > 0``.
+
+Definition 1: a face belonging to exactly one tetrahedron is a *boundary
+triangle*; its vertices are *boundary vertices*.  For a box-shaped grid the
+redundant boundary points are dropped and only the 8 corners are kept (the
+boundary polyhedron is 12 triangles, section 5); :func:`cube_boundary_triangles`
+gives those 12 triangles.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+from scipy.spatial import ConvexHull, Delaunay
+
+__all__ = [
+    "orient3d_float",
+    "kuhn_tetrahedra",
+    "box_tetrahedra",
+    "delaunay_tetrahedra",
+    "boundary_triangles",
+    "edge_neighbours",
+    "two_ring",
+    "cube_corners",
+    "cube_boundary_triangles",
+    "hull_triangles",
+    "hull_boundary_mask",
+]
+
+# The six Kuhn tetrahedra of the unit cube, as paths 000 -> 111 along the axes in
+# every order (p0, p1, p2): (v000, v000 + e_p0, v000 + e_p0 + e_p1, v111).
+_KUHN_OFFSETS = []
+for _perm in itertools.permutations(range(3)):
+    _v = np.zeros(3, dtype=np.int64)
+    _path = [_v.copy()]
+    for _ax in _perm:
+        _v[_ax] += 1
+        _path.append(_v.copy())
+    _t = np.array(_path)
+    # orient positively: det[b-a, c-a, d-a] > 0
+    if np.linalg.det((_t[1:] - _t[0]).astype(float)) < 0:
+        _t = _t[[0, 2, 1, 3]]
+    _KUHN_OFFSETS.append(_t)
+_KUHN_OFFSETS = np.array(_KUHN_OFFSETS)  # (6, 4, 3)
+
+
+def orient3d_float(p, tets):
+    """Signed volume times 6 of each tetrahedron (float; for checks, not predicates)."""
+    a, b, c, d = (p[tets[:, i]] for i in range(4))
+    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)
+
+
+def kuhn_tetrahedra(shape, mirror_x: bool = False) -> np.ndarray:
+    """Kuhn/Freudenthal split of a grid of ``shape`` points into ``6 prod(shape - 1)`` tets.
+
+    Parameters
+    ----------
+    shape : 3 ints
+        Points per axis; point ``(i, j, k)`` has index ``(i * shape[1] + j) * shape[2] + k``.
+    mirror_x : bool
+        Split every cube along the diagonal ``(1,0,0)-(0,1,1)`` instead of
+        ``(0,0,0)-(1,1,1)`` (the mirror image; also Delaunay).
+
+    Returns
+    -------
+    (M, 4) int64, positively oriented.
+    """
+    sx, sy, sz = (int(s) for s in shape)
+    ii, jj, kk = np.meshgrid(np.arange(sx - 1), np.arange(sy - 1), np.arange(sz - 1), indexing="ij")
+    base = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)  # (C, 3)
+    off = _KUHN_OFFSETS.copy()
+    if mirror_x:
+        off[:, :, 0] = 1 - off[:, :, 0]
+        off = off[:, [0, 2, 1, 3]]  # mirroring flips orientation
+    v = base[:, None, None, :] + off[None, :, :, :]  # (C, 6, 4, 3)
+    idx = (v[..., 0] * sy + v[..., 1]) * sz + v[..., 2]
+    return idx.reshape(-1, 4).astype(np.int64)
+
+
+def delaunay_tetrahedra(points) -> np.ndarray:
+    """Delaunay tetrahedra of scattered points, positively oriented, degenerate ones dropped."""
+    tri = Delaunay(np.asarray(points, float))
+    tets = tri.simplices.astype(np.int64)
+    vol = orient3d_float(np.asarray(points, float), tets)
+    neg = vol < 0
+    tets[neg] = tets[neg][:, [0, 2, 1, 3]]
+    return tets[np.abs(vol) > 0]
+
+
+def _faces(tets):
+    """All 4 faces of every tet, each as a sorted triple, with the opposite local vertex."""
+    f = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]])
+    return f
+
+
+def boundary_triangles(tets) -> np.ndarray:
+    """Faces belonging to exactly one tetrahedron (Definition 1), oriented outward.
+
+    The returned triangles ``(a, b, c)`` have the tetrahedron's fourth vertex on
+    their negative side, i.e. ``orient3d(a, b, c, inside) < 0``.
+    """
+    tets = np.asarray(tets, np.int64)
+    # face opposite local vertex i, ordered so that (face, vertex i) is positive
+    # for positively oriented tets: opp0 = (1,3,2)?  We orient explicitly below.
+    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
+    key = np.sort(faces, axis=1)
+    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    once = counts[inv.ravel()] == 1
+    return faces[once]
+
+
+def edge_neighbours(tets, n_points: int):
+    """Edge-neighbour graph of a triangulation as CSR arrays ``(indptr, indices)``."""
+    tets = np.asarray(tets, np.int64)
+    pairs = np.concatenate([tets[:, [a, b]] for a, b in itertools.combinations(range(4), 2)])
+    pairs = np.concatenate([pairs, pairs[:, ::-1]])
+    pairs = np.unique(pairs, axis=0)
+    indptr = np.zeros(n_points + 1, dtype=np.int64)
+    np.add.at(indptr, pairs[:, 0] + 1, 1)
+    np.cumsum(indptr, out=indptr)
+    return indptr, pairs[:, 1].copy()
+
+
+def two_ring(indptr, indices, vertices):
+    """For each of ``vertices``, its neighbours and their neighbours (without itself)."""
+    out = []
+    for v in np.asarray(vertices, np.int64):
+        ring1 = indices[indptr[v]:indptr[v + 1]]
+        ring2 = np.concatenate([ring1] + [indices[indptr[u]:indptr[u + 1]] for u in ring1])
+        ring2 = np.unique(ring2)
+        out.append(ring2[ring2 != v])
+    return out
+
+
+def cube_corners(shape) -> np.ndarray:
+    """Indices of the 8 corner points of a grid of ``shape`` points."""
+    sx, sy, sz = (int(s) for s in shape)
+    c = [(i, j, k) for i in (0, sx - 1) for j in (0, sy - 1) for k in (0, sz - 1)]
+    return np.array([(i * sy + j) * sz + k for i, j, k in c], dtype=np.int64)
+
+
+def cube_boundary_triangles(shape, diagonals: str = "kuhn") -> np.ndarray:
+    """The 12 boundary triangles of a box-shaped grid (section 5), oriented outward.
+
+    ``diagonals='kuhn'`` takes the face diagonals of the Kuhn split of the whole
+    box (all through the main diagonal's end points); ``'mirrored'`` those of the
+    mirrored split.  Either way the 12 triangles are exactly the boundary of a
+    6-tetrahedron split of the box, so :func:`box_tetrahedra` triangulates them.
+    """
+    return boundary_triangles(box_tetrahedra(shape, diagonals))
+
+
+def box_tetrahedra(shape, diagonals: str = "kuhn") -> np.ndarray:
+    """Six tetrahedra on the 8 corners of a grid box (its coarsest triangulation)."""
+    if diagonals not in ("kuhn", "mirrored"):
+        raise ValueError(f"unknown boundary diagonals {diagonals!r}: choose 'kuhn' or 'mirrored'")
+    corners = cube_corners(shape).reshape(2, 2, 2)
+    unit = kuhn_tetrahedra((2, 2, 2), mirror_x=(diagonals == "mirrored"))
+    # unit-cube index (i*2+j)*2+k -> corner point index
+    return corners.ravel()[unit]
+
+
+def hull_triangles(points):
+    """Convex-hull triangles (outward) and hull vertices of scattered points.
+
+    Only the extreme points (vertices of the hull polytope, as Qhull reports them)
+    are returned as vertices; points lying in the interior of hull faces or edges
+    are not, so they stay candidates for selection like the face points of a grid.
+    """
+    p = np.asarray(points, float)
+    hull = ConvexHull(p)
+    tris = hull.simplices.astype(np.int64).copy()
+    centroid = p[hull.vertices].mean(axis=0)
+    a, b, c = p[tris[:, 0]], p[tris[:, 1]], p[tris[:, 2]]
+    s = np.einsum("ij,ij->i", np.cross(b - a, c - a), centroid - a)
+    flip = s > 0
+    tris[flip] = tris[flip][:, [0, 2, 1]]
+    return tris, np.unique(tris)
+
+
+def hull_boundary_mask(points, rtol: float = 1e-12) -> np.ndarray:
+    """True for points on the convex hull's surface (on a hull facet's plane)."""
+    p = np.asarray(points, float)
+    hull = ConvexHull(p)
+    scale = np.max(np.abs(p)) if p.size else 1.0
+    dist = p @ hull.equations[:, :3].T + hull.equations[:, 3]
+    return np.any(np.abs(dist) <= rtol * max(scale, 1e-300), axis=1)
