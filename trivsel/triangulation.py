@@ -121,13 +121,15 @@ def boundary_triangles(tets) -> np.ndarray:
 def edge_neighbours(tets, n_points: int):
     """Edge-neighbour graph of a triangulation as CSR arrays ``(indptr, indices)``."""
     tets = np.asarray(tets, np.int64)
-    pairs = np.concatenate([tets[:, [a, b]] for a, b in itertools.combinations(range(4), 2)])
-    pairs = np.concatenate([pairs, pairs[:, ::-1]])
-    pairs = np.unique(pairs, axis=0)
+    a = np.concatenate([tets[:, i] for i, j in itertools.combinations(range(4), 2)])
+    b = np.concatenate([tets[:, j] for i, j in itertools.combinations(range(4), 2)])
+    n = np.int64(n_points)
+    # each undirected edge as one integer key, both directions, deduplicated
+    key = np.unique(np.concatenate([a * n + b, b * n + a]))
+    src, dst = np.divmod(key, n)
     indptr = np.zeros(n_points + 1, dtype=np.int64)
-    np.add.at(indptr, pairs[:, 0] + 1, 1)
-    np.cumsum(indptr, out=indptr)
-    return indptr, pairs[:, 1].copy()
+    indptr[1:] = np.cumsum(np.bincount(src, minlength=n_points))
+    return indptr, dst
 
 
 def two_ring(indptr, indices, vertices):

@@ -1,0 +1,107 @@
+"""Mesh-validity checker: call it after any operation (tests do, after every one).
+
+Checks, on a :class:`trivsel.mesh.TetMesh`:
+
+1. every live tet has strictly positive volume (exact predicate);
+2. the tets' volumes add up to the volume of the convex hull of the points;
+3. every face has one tet (hull) or two tets, and the neighbour links are
+   symmetric and agree with the shared faces;
+4. every vertex of a tet is marked selected, and every selected point is a vertex;
+5. every original point lies in some tet, and the piecewise-linear interpolant is
+   continuous: all tets containing a point give it the same value;
+6. each tet's point bucket is exactly the set of original points in the closed tet.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy.spatial import ConvexHull
+
+from . import mesh as _m
+from .triangulation import orient3d_float
+
+__all__ = ["check_mesh", "MeshInvalid"]
+
+
+class MeshInvalid(AssertionError):
+    """The mesh violates an invariant; the message says which and where."""
+
+
+def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rtol: float = 1e-9):
+    """Raise :class:`MeshInvalid` unless ``tm`` satisfies every invariant listed above."""
+    S = tm.S
+    ids = tm.live_ids()
+    tets = S[_m._TETS][ids].astype(np.int64)
+    nbr = S[_m._NBR][ids].astype(np.int64)
+    P = S[_m._P]
+    if len(ids) == 0:
+        raise MeshInvalid("mesh has no tetrahedra")
+    # 1. positive volumes with the exact predicate
+    for k, t in enumerate(ids):
+        if _m._orient(S, *tets[k]) <= 0:
+            raise MeshInvalid(f"tet {t} {tets[k].tolist()} is not positively oriented")
+    # 2. volume
+    vol = orient3d_float(P, tets).sum() / 6.0
+    if hull_volume is None:
+        hull_volume = ConvexHull(P).volume
+    if abs(vol - hull_volume) > rtol * max(hull_volume, 1e-300) * 10:
+        raise MeshInvalid(f"total volume {vol!r} differs from the hull volume {hull_volume!r}")
+    # 3. faces and links
+    alive = S[_m._ALIVE]
+    pos = {int(t): k for k, t in enumerate(ids)}
+    faces = {}
+    for k, t in enumerate(ids):
+        for i in range(4):
+            key = tuple(sorted(np.delete(tets[k], i).tolist()))
+            faces.setdefault(key, []).append((int(t), i))
+    for key, owners in faces.items():
+        if len(owners) > 2:
+            raise MeshInvalid(f"face {key} belongs to {len(owners)} tets {owners}")
+        for (t, i) in owners:
+            u = int(S[_m._NBR][t, i])
+            if len(owners) == 1:
+                if u != -1:
+                    raise MeshInvalid(f"hull face {key} of tet {t} links to {u}")
+            else:
+                other = owners[0][0] if owners[1][0] == t else owners[1][0]
+                if u != other:
+                    raise MeshInvalid(f"face {key}: tet {t} links to {u}, expected {other}")
+                if u >= 0 and not alive[u]:
+                    raise MeshInvalid(f"tet {t} links to dead tet {u}")
+    # hull faces must lie on the convex hull (no internal holes)
+    # 4. vertices
+    isvert = S[_m._ISVERT].astype(bool)
+    used = np.zeros(len(isvert), bool)
+    used[np.unique(tets)] = True
+    if np.any(used != isvert):
+        bad = np.flatnonzero(used != isvert)[:5]
+        raise MeshInvalid(f"selected points and tet vertices disagree at points {bad.tolist()}")
+    # 5. coverage and continuity
+    out, worst = tm.residuals()
+    F = S[_m._F]
+    scale = max(float(np.abs(F).max()), 1e-300)
+    if worst > 1e-9 * scale:
+        raise MeshInvalid(f"interpolant is discontinuous: two tets disagree by {worst:.3e} at a point")
+    # 6. buckets exactly the closed point sets
+    if buckets:
+        counts = np.zeros(len(F), np.int64)
+        for k, t in enumerate(ids):
+            b = tm.bucket(t)
+            if len(np.unique(b)) != len(b):
+                raise MeshInvalid(f"tet {t} lists a point twice")
+            counts[b] += 1
+            for p in b:
+                inside, nz, val = _m._locate_in(S, *tets[k], int(p))
+                if not inside:
+                    raise MeshInvalid(f"point {p} is in the bucket of tet {t} but not inside it")
+        if np.any(counts == 0):
+            p = int(np.flatnonzero(counts == 0)[0])
+            raise MeshInvalid(f"point {p} is in no tet's bucket")
+        # a point inside a tet but missing from its bucket: check a sample exhaustively
+        rng = np.random.default_rng(0)
+        sample = rng.choice(len(F), size=min(len(F), 64), replace=False)
+        for p in sample:
+            n_in = sum(_m._locate_in(S, *tets[k], int(p))[0] for k in range(len(ids)))
+            if n_in != counts[p]:
+                raise MeshInvalid(f"point {p} lies in {n_in} tets but is in {counts[p]} buckets")
+    return True

@@ -1,0 +1,1186 @@
+"""The data-dependent tetrahedral mesh (section 4) as flat arrays and small named operations.
+
+Storage (no object per element; preallocated, recycled through a free list)::
+
+    tets[t]   = (v0, v1, v2, v3)     original point indices, orient3d > 0
+    nbr[t, i] = tet across the face opposite v_i, or -1 on the hull
+    pool[bstart[t] : bstart[t] + blen[t]]
+              = the original points in the *closed* tet t (vertices and points on
+                faces and edges included: a point on a shared face is in both tets)
+    tsse, tmax, tcnt = squared-residual sum, max |residual| and point count of t
+
+Every change of the mesh - the three insertion cases (i)-(iii) of section 4, the
+2-3 / 3-2 flips of configuration 1 (Fig. 2) and the 4-4 flip of configuration 2
+(Fig. 3) - is "replace these old tets by these new quadruples" and goes through
+one primitive, :func:`_replace`, which matches faces to keep neighbour links
+symmetric (the analogue of delaunator's ``_link``), redistributes the old tets'
+points to the new tets and updates the per-tet errors (eqs. 14-15) and the global
+residuals.  Nothing else writes ``nbr``.
+
+The state is a tuple of arrays (see :func:`make_state`) so that the compiled
+functions can be cached on disk; the Python class :class:`TetMesh` wraps it for
+tests and for :mod:`trivsel.reduction`.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .predicates import orient3d_float, orient3d_float_sign, orient3d_int
+
+# indices into the state tuple
+_P, _IC, _F, _TETS, _NBR, _ALIVE, _FREE, _BSTART, _BLEN, _POOL = range(10)
+_TSSE, _TMAX, _TCNT, _MARK, _RESID, _OWNER, _ISVERT, _WBUF, _CTR, _FOPT, _ACC, _OMARK = range(10, 22)
+
+# counters (int64 array)
+C_HW, C_NFREE, C_POOLTOP, C_NALIVE, C_STAMP, C_ERROR = 0, 1, 2, 3, 4, 5
+C_FLIP23, C_FLIP32, C_FLIP44, C_NVERT, C_ABOVE, C_OSTAMP = 6, 7, 8, 9, 10, 11
+C_CASE1, C_CASE2, C_CASE3, C_ROUNDCAP = 12, 13, 14, 15
+
+# float options
+O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS = range(8)
+
+CRITERIA = {"rms": 0, "max": 1, "sse": 2}
+
+# error codes
+ERR_TETCAP, ERR_POOLCAP, ERR_LINK, ERR_UNCOVERED, ERR_DUPLICATE = 1, 2, 3, 4, 5
+
+# Local face i is opposite local vertex i.  FACE_IN[i] lists the other three local
+# vertices ordered so that vertex i lies on the positive side:
+# orient3d(v[f0], v[f1], v[f2], v[i]) > 0 for a positively oriented tet.
+FACE_IN = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]], dtype=np.int64)
+# the six edges of a tet as local vertex pairs
+EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
+
+
+# ----------------------------------------------------------------------------- predicates
+
+@njit(cache=True)
+def _orient(S, a, b, c, d):
+    """Sign of orient3d of original points a, b, c, d (exact on grids, robust otherwise)."""
+    if S[_FOPT][O_USEINT] > 0.0:
+        I = S[_IC]
+        v = orient3d_int(I[a, 0], I[a, 1], I[a, 2], I[b, 0], I[b, 1], I[b, 2],
+                         I[c, 0], I[c, 1], I[c, 2], I[d, 0], I[d, 1], I[d, 2])
+        return 1 if v > 0 else (-1 if v < 0 else 0)
+    P = S[_P]
+    return orient3d_float_sign(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
+                               P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
+
+
+@njit(cache=True)
+def _volume(S, a, b, c, d):
+    """orient3d value as float: exact integer on grids, float determinant otherwise."""
+    if S[_FOPT][O_USEINT] > 0.0:
+        I = S[_IC]
+        return float(orient3d_int(I[a, 0], I[a, 1], I[a, 2], I[b, 0], I[b, 1], I[b, 2],
+                                  I[c, 0], I[c, 1], I[c, 2], I[d, 0], I[d, 1], I[d, 2]))
+    P = S[_P]
+    return orient3d_float(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
+                          P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
+
+
+@njit(cache=True)
+def _locate_in(S, q0, q1, q2, q3, p):
+    """Closed containment of point p in tet (q0..q3): (inside, n_zero_signs, interpolated value).
+
+    The barycentric weights (eq. 13) are the four sub-volumes with p replacing one
+    vertex; the interpolant is the linear polynomial L of eq. 16.
+    """
+    s0 = _orient(S, p, q1, q2, q3)
+    if s0 < 0:
+        return False, 0, 0.0
+    s1 = _orient(S, q0, p, q2, q3)
+    if s1 < 0:
+        return False, 0, 0.0
+    s2 = _orient(S, q0, q1, p, q3)
+    if s2 < 0:
+        return False, 0, 0.0
+    s3 = _orient(S, q0, q1, q2, p)
+    if s3 < 0:
+        return False, 0, 0.0
+    nz = (s0 == 0) + (s1 == 0) + (s2 == 0) + (s3 == 0)
+    F = S[_F]
+    if p == q0:
+        return True, nz, F[q0]
+    if p == q1:
+        return True, nz, F[q1]
+    if p == q2:
+        return True, nz, F[q2]
+    if p == q3:
+        return True, nz, F[q3]
+    w0 = _volume(S, p, q1, q2, q3) if s0 > 0 else 0.0
+    w1 = _volume(S, q0, p, q2, q3) if s1 > 0 else 0.0
+    w2 = _volume(S, q0, q1, p, q3) if s2 > 0 else 0.0
+    w3 = _volume(S, q0, q1, q2, p) if s3 > 0 else 0.0
+    tot = w0 + w1 + w2 + w3
+    val = (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
+    return True, nz, val
+
+
+@njit(cache=True)
+def _crit(S, sse, mx, cnt):
+    """Per-tet error for the swap criterion: RMS (eq. 14), max (eq. 15) or SSE."""
+    c = S[_FOPT][O_CRIT]
+    if c == 0.0:
+        return np.sqrt(sse / cnt) if cnt > 0 else 0.0
+    if c == 1.0:
+        return mx
+    return sse
+
+
+# ----------------------------------------------------------------------------- storage
+
+@njit(cache=True)
+def _alloc(S):
+    """A tet slot from the free list or the high-water mark; -1 if full."""
+    ctr = S[_CTR]
+    if ctr[C_NFREE] > 0:
+        ctr[C_NFREE] -= 1
+        t = S[_FREE][ctr[C_NFREE]]
+    else:
+        if ctr[C_HW] >= S[_TETS].shape[0]:
+            ctr[C_ERROR] = ERR_TETCAP
+            return -1
+        t = ctr[C_HW]
+        ctr[C_HW] += 1
+    S[_ALIVE][t] = 1
+    S[_BLEN][t] = 0
+    ctr[C_NALIVE] += 1
+    return t
+
+
+@njit(cache=True)
+def _kill(S, t):
+    ctr = S[_CTR]
+    S[_ALIVE][t] = 0
+    S[_FREE][ctr[C_NFREE]] = t
+    ctr[C_NFREE] += 1
+    ctr[C_NALIVE] -= 1
+
+
+@njit(cache=True)
+def _compact_pool(S):
+    """Move the live tets' point buckets to the front of the pool (in place)."""
+    ctr = S[_CTR]
+    alive = S[_ALIVE]
+    bstart = S[_BSTART]
+    blen = S[_BLEN]
+    pool = S[_POOL]
+    hw = ctr[C_HW]
+    live = np.empty(hw, np.int64)
+    n = 0
+    for t in range(hw):
+        if alive[t] and blen[t] > 0:
+            live[n] = t
+            n += 1
+    live = live[:n]
+    order = np.argsort(bstart[live])
+    top = 0
+    for k in range(n):
+        t = live[order[k]]
+        s = bstart[t]
+        L = blen[t]
+        for j in range(L):
+            pool[top + j] = pool[s + j]
+        bstart[t] = top
+        top += L
+    ctr[C_POOLTOP] = top
+
+
+@njit(cache=True)
+def _gather(S, old, nold):
+    """Points of the old tets' buckets, each once, into S[_WBUF]; returns their count."""
+    ctr = S[_CTR]
+    ctr[C_STAMP] += 1
+    st = ctr[C_STAMP]
+    mark = S[_MARK]
+    buf = S[_WBUF]
+    pool = S[_POOL]
+    bstart = S[_BSTART]
+    blen = S[_BLEN]
+    m = 0
+    for k in range(nold):
+        t = old[k]
+        s = bstart[t]
+        for j in range(blen[t]):
+            p = pool[s + j]
+            if mark[p] != st:
+                mark[p] = st
+                buf[m] = p
+                m += 1
+    return m
+
+
+@njit(cache=True)
+def _other_index(tets, u, a, b, c):
+    """Local index of the vertex of tet u that is not a, b or c."""
+    for j in range(4):
+        v = tets[u, j]
+        if v != a and v != b and v != c:
+            return j
+    return -1
+
+
+@njit(cache=True)
+def _sorted3(a, b, c):
+    if a > b:
+        a, b = b, a
+    if b > c:
+        b, c = c, b
+    if a > b:
+        a, b = b, a
+    return a, b, c
+
+
+@njit(cache=True)
+def _link(S, t, i, u):
+    """Make t (across its face i) and u neighbours, symmetrically; u may be -1 (hull)."""
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    nbr[t, i] = u
+    if u >= 0:
+        a = tets[t, (i + 1) % 4]
+        b = tets[t, (i + 2) % 4]
+        c = tets[t, (i + 3) % 4]
+        j = _other_index(tets, u, a, b, c)
+        nbr[u, j] = t
+
+
+# ----------------------------------------------------------------------------- the primitive
+
+@njit(cache=True)
+def _replace(S, old, nold, newq, nnew, new_hull=False):
+    """Replace tets ``old[:nold]`` by the quadruples ``newq[:nnew]`` (same region).
+
+    Links the new tets to each other and to the outside neighbours of the old
+    ones, moves the old tets' points into the new tets that contain them (closed
+    containment), recomputes their errors and the global residuals.  A new face
+    that matches no face is an error, unless ``new_hull`` (insertion on a hull face
+    or edge splits hull faces): then it becomes a hull face.  Returns the
+    new tet ids (an empty array and S[_CTR][C_ERROR] set on failure).
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    ctr = S[_CTR]
+    # 1. outer faces of the cavity: sorted key and the outside tet
+    okey = np.empty((4 * nold, 3), np.int64)
+    oout = np.empty(4 * nold, np.int64)
+    no = 0
+    for k in range(nold):
+        t = old[k]
+        for i in range(4):
+            u = nbr[t, i]
+            inside = False
+            for kk in range(nold):
+                if old[kk] == u:
+                    inside = True
+                    break
+            if inside:
+                continue
+            a, b, c = _sorted3(tets[t, (i + 1) % 4], tets[t, (i + 2) % 4], tets[t, (i + 3) % 4])
+            okey[no, 0] = a
+            okey[no, 1] = b
+            okey[no, 2] = c
+            oout[no] = u
+            no += 1
+    # 2. points of the cavity
+    m = _gather(S, old, nold)
+    for k in range(nold):
+        _kill(S, old[k])
+    # 3. new tets
+    ids = np.empty(nnew, np.int64)
+    for k in range(nnew):
+        t = _alloc(S)
+        if t < 0:
+            return ids[:0]
+        ids[k] = t
+        for j in range(4):
+            tets[t, j] = newq[k, j]
+    # 4. links: internal faces pairwise, outer faces to the outside
+    for k in range(nnew):
+        t = ids[k]
+        for i in range(4):
+            a, b, c = _sorted3(tets[t, (i + 1) % 4], tets[t, (i + 2) % 4], tets[t, (i + 3) % 4])
+            found = False
+            for k2 in range(nnew):
+                if k2 == k:
+                    continue
+                t2 = ids[k2]
+                j = _other_index(tets, t2, a, b, c)
+                if j >= 0:
+                    a2, b2, c2 = _sorted3(tets[t2, (j + 1) % 4], tets[t2, (j + 2) % 4], tets[t2, (j + 3) % 4])
+                    if a2 == a and b2 == b and c2 == c:
+                        nbr[t, i] = t2
+                        found = True
+                        break
+            if not found:
+                for f in range(no):
+                    if okey[f, 0] == a and okey[f, 1] == b and okey[f, 2] == c:
+                        _link(S, t, i, oout[f])
+                        found = True
+                        break
+            if not found:
+                if new_hull:
+                    nbr[t, i] = -1
+                else:
+                    ctr[C_ERROR] = ERR_LINK
+                    return ids[:0]
+    # 5. buckets, per-tet errors, residuals
+    pool = S[_POOL]
+    if ctr[C_POOLTOP] + nnew * m > pool.shape[0]:
+        _compact_pool(S)
+        if ctr[C_POOLTOP] + nnew * m > pool.shape[0]:
+            ctr[C_ERROR] = ERR_POOLCAP
+            return ids[:0]
+    buf = S[_WBUF]
+    F = S[_F]
+    resid = S[_RESID]
+    owner = S[_OWNER]
+    acc = S[_ACC]
+    fopt = S[_FOPT]
+    ownvert = fopt[O_OWNVERT] > 0.0
+    tolinf = fopt[O_TOLINF]
+    mark = S[_MARK]
+    st = ctr[C_STAMP]  # points still carrying this stamp are not yet covered
+    for k in range(nnew):
+        t = ids[k]
+        q0 = tets[t, 0]
+        q1 = tets[t, 1]
+        q2 = tets[t, 2]
+        q3 = tets[t, 3]
+        top = ctr[C_POOLTOP]
+        S[_BSTART][t] = top
+        L = 0
+        sse = 0.0
+        mx = 0.0
+        cnt = 0
+        for j in range(m):
+            p = buf[j]
+            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            if not inside:
+                continue
+            pool[top + L] = p
+            L += 1
+            r = F[p] - val
+            if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
+                sse += r * r
+                ar = abs(r)
+                if ar > mx:
+                    mx = ar
+                cnt += 1
+            if mark[p] == st:
+                mark[p] = st - 1  # covered
+                old_r = resid[p]
+                acc[0] += r * r - old_r * old_r
+                if tolinf >= 0.0:
+                    if abs(old_r) > tolinf:
+                        ctr[C_ABOVE] -= 1
+                    if abs(r) > tolinf:
+                        ctr[C_ABOVE] += 1
+                resid[p] = r
+                owner[p] = t
+        S[_BLEN][t] = L
+        ctr[C_POOLTOP] = top + L
+        S[_TSSE][t] = sse
+        S[_TMAX][t] = mx
+        S[_TCNT][t] = cnt
+    for j in range(m):
+        if mark[buf[j]] == st:
+            ctr[C_ERROR] = ERR_UNCOVERED
+            return ids[:0]
+    return ids
+
+
+@njit(cache=True)
+def _positive(S, newq, nnew):
+    """Admissibility: every new tet has strictly positive volume."""
+    for k in range(nnew):
+        if _orient(S, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
+            return False
+    return True
+
+
+@njit(cache=True)
+def _evaluate(S, old, nold, newq, nnew):
+    """Criterion sums (before, after) of replacing old by newq, without changing the mesh.
+
+    For RMS/max criteria these are sums of per-tet errors (eqs. 14-15) as in step
+    (iii) of section 4; for SSE the sum of squared residuals over the points of the
+    configuration, each counted once (the exact change of the global L2 error).
+    """
+    crit = S[_FOPT][O_CRIT]
+    ownvert = S[_FOPT][O_OWNVERT] > 0.0
+    m = _gather(S, old, nold)
+    buf = S[_WBUF]
+    F = S[_F]
+    before = 0.0
+    after = 0.0
+    if crit == 2.0:
+        resid = S[_RESID]
+        for j in range(m):
+            p = buf[j]
+            before += resid[p] * resid[p]
+            for k in range(nnew):
+                inside, nz, val = _locate_in(S, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3], p)
+                if inside:
+                    r = F[p] - val
+                    after += r * r
+                    break
+        return before, after
+    for k in range(nold):
+        t = old[k]
+        before += _crit(S, S[_TSSE][t], S[_TMAX][t], S[_TCNT][t])
+    for k in range(nnew):
+        q0 = newq[k, 0]
+        q1 = newq[k, 1]
+        q2 = newq[k, 2]
+        q3 = newq[k, 3]
+        sse = 0.0
+        mx = 0.0
+        cnt = 0
+        for j in range(m):
+            p = buf[j]
+            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            if inside and (ownvert or (p != q0 and p != q1 and p != q2 and p != q3)):
+                r = F[p] - val
+                sse += r * r
+                if abs(r) > mx:
+                    mx = abs(r)
+                cnt += 1
+        after += _crit(S, sse, mx, cnt)
+    return before, after
+
+
+# ----------------------------------------------------------------------------- insertion
+
+@njit(cache=True)
+def insert_point(S, p):
+    """Insert original point p (section 4, cases i-iii); returns (case, new tet ids).
+
+    The tets whose closed region contains p are found from p's owner tet by
+    crossing faces that contain p: one tet (case i, p interior: 1 -> 4), the one or
+    two tets sharing a face (case ii: each -> 3), or all tets around an edge
+    (case iii: each -> 2).  Each is replaced by the tets joining p to its faces
+    that do not contain p.  Boundary faces and edges are handled alike.
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    t0 = S[_OWNER][p]
+    cav = np.empty(64, np.int64)
+    sg = np.empty((64, 4), np.int64)
+    ncav = 1
+    cav[0] = t0
+    ctr = S[_CTR]
+    ctr[C_OSTAMP] += 1
+    om = S[_OMARK]
+    om[t0] = ctr[C_OSTAMP]
+    k = 0
+    while k < ncav:
+        t = cav[k]
+        q0 = tets[t, 0]
+        q1 = tets[t, 1]
+        q2 = tets[t, 2]
+        q3 = tets[t, 3]
+        sg[k, 0] = _orient(S, p, q1, q2, q3)
+        sg[k, 1] = _orient(S, q0, p, q2, q3)
+        sg[k, 2] = _orient(S, q0, q1, p, q3)
+        sg[k, 3] = _orient(S, q0, q1, q2, p)
+        for i in range(4):
+            if sg[k, i] == 0:
+                u = nbr[t, i]
+                if u >= 0 and om[u] != ctr[C_OSTAMP]:
+                    om[u] = ctr[C_OSTAMP]
+                    if ncav == cav.shape[0]:
+                        cav = np.concatenate((cav, np.empty(ncav, np.int64)))
+                        sg2 = np.empty((2 * ncav, 4), np.int64)
+                        sg2[:ncav] = sg
+                        sg = sg2
+                    cav[ncav] = u
+                    ncav += 1
+        k += 1
+    nz = 0
+    for i in range(4):
+        if sg[0, i] == 0:
+            nz += 1
+    if nz >= 3:
+        ctr[C_ERROR] = ERR_DUPLICATE
+        return 0, cav[:0]
+    newq = np.empty((4 * ncav, 4), np.int64)
+    nn = 0
+    for k in range(ncav):
+        t = cav[k]
+        for i in range(4):
+            if sg[k, i] > 0:
+                for j in range(4):
+                    newq[nn, j] = tets[t, j]
+                newq[nn, i] = p
+                nn += 1
+    ids = _replace(S, cav, ncav, newq, nn, True)
+    S[_ISVERT][p] = 1
+    ctr[C_NVERT] += 1
+    ctr[C_CASE1 + nz] += 1
+    return nz + 1, ids
+
+
+@njit(cache=True)
+def cone_from_hull(S, p):
+    """First insertion (section 3-4): join p to every boundary triangle.
+
+    Replaces the whole current mesh (the triangulation of the fixed points) by the
+    cone from p over its hull faces.  Returns the new ids, or an empty array if p
+    is not strictly inside the hull (some cone tet would be flat); then nothing
+    has changed and the caller inserts p with :func:`insert_point` instead.
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    alive = S[_ALIVE]
+    hw = S[_CTR][C_HW]
+    old = np.empty(hw, np.int64)
+    nold = 0
+    nh = 0
+    for t in range(hw):
+        if alive[t]:
+            old[nold] = t
+            nold += 1
+            for i in range(4):
+                if nbr[t, i] < 0:
+                    nh += 1
+    newq = np.empty((nh, 4), np.int64)
+    k = 0
+    for n in range(nold):
+        t = old[n]
+        for i in range(4):
+            if nbr[t, i] < 0:
+                # outward triangle = inward face with two vertices swapped
+                newq[k, 0] = p
+                newq[k, 1] = tets[t, FACE_IN[i, 0]]
+                newq[k, 2] = tets[t, FACE_IN[i, 2]]
+                newq[k, 3] = tets[t, FACE_IN[i, 1]]
+                k += 1
+    if not _positive(S, newq, nh):
+        return old[:0]
+    ids = _replace(S, old, nold, newq, nh)
+    S[_ISVERT][p] = 1
+    S[_CTR][C_NVERT] += 1
+    S[_CTR][C_CASE1] += 1
+    return ids
+
+
+# ----------------------------------------------------------------------------- configurations
+
+@njit(cache=True)
+def config23(S, t, i, old, newq):
+    """Configuration 1 seen as two tets (Fig. 2, left): t and its neighbour across face i.
+
+    ::
+
+              d                 d
+             /|\\              /|\\
+            / | \\            / | \\
+          f1--+--f3   2->3  f1--d-e--f3   (edge d-e pierces the face f1 f2 f3)
+            \\ | /            \\ | /
+             \\|/              \\|/
+              e                 e
+
+    Fills old[:2] and newq[:3] with (f1, f2, e, d), (f2, f3, e, d), (f3, f1, e, d);
+    returns False when face i is on the hull.
+    """
+    tets = S[_TETS]
+    u = S[_NBR][t, i]
+    if u < 0:
+        return False
+    d = tets[t, i]
+    f1 = tets[t, FACE_IN[i, 0]]
+    f2 = tets[t, FACE_IN[i, 1]]
+    f3 = tets[t, FACE_IN[i, 2]]
+    e = tets[u, _other_index(tets, u, f1, f2, f3)]
+    old[0] = t
+    old[1] = u
+    newq[0, 0], newq[0, 1], newq[0, 2], newq[0, 3] = f1, f2, e, d
+    newq[1, 0], newq[1, 1], newq[1, 2], newq[1, 3] = f2, f3, e, d
+    newq[2, 0], newq[2, 1], newq[2, 2], newq[2, 3] = f3, f1, e, d
+    return True
+
+
+@njit(cache=True)
+def edge_ring(S, t, a, b, old, ring):
+    """Tets around edge (a, b) starting at t, and the ring of opposite vertices.
+
+    Walks face to face around the edge.  Fills old[:k] and ring[:k] ordered so that
+    orient3d(a, b, ring[j], ring[j+1]) > 0 and tet old[j] = {a, b, ring[j], ring[j+1]}.
+    Returns k for a closed ring (interior edge) of at most old.shape[0] tets, or -1
+    for an edge on the hull or a longer ring.
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    cap = old.shape[0]
+    # the two other vertices of t
+    x = -1
+    y = -1
+    for j in range(4):
+        v = tets[t, j]
+        if v != a and v != b:
+            if x < 0:
+                x = v
+            else:
+                y = v
+    if _orient(S, a, b, x, y) < 0:
+        x, y = y, x
+    # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
+    k = 0
+    cur = t
+    while True:
+        if k >= cap:
+            return -1
+        old[k] = cur
+        ring[k] = x
+        k += 1
+        j = _other_index(tets, cur, a, b, y)  # local index of x in cur
+        nxt = nbr[cur, j]
+        if nxt < 0:
+            return -1
+        if nxt == t:
+            return k
+        z = tets[nxt, _other_index(tets, nxt, a, b, y)]
+        x = y
+        y = z
+        cur = nxt
+
+
+@njit(cache=True)
+def quads32(a, b, ring, newq):
+    """Configuration 1 seen as three tets around edge (a, b) -> two tets (Fig. 2, right to left).
+
+    ::
+
+          a               a
+         /|\\             / \\
+      c1-+-c3   3->2   c1---c3     the edge a-b is removed; the triangle
+         \\|/             \\ /       (c1, c2, c3) becomes the shared face
+          b               b
+    """
+    newq[0, 0], newq[0, 1], newq[0, 2], newq[0, 3] = a, ring[0], ring[1], ring[2]
+    newq[1, 0], newq[1, 1], newq[1, 2], newq[1, 3] = ring[0], ring[1], ring[2], b
+
+
+@njit(cache=True)
+def quads44(a, b, ring, alt, newq):
+    """Configuration 2 (Fig. 3): four tets around edge (a, b) -> the other diagonal.
+
+    ::
+
+              a                      a
+           /  |  \\               /     \\
+        c4 ---+--- c2   4->4   c4 ----- c2     edge a-b replaced by c1-c3 (alt 0)
+        c1    |    c3          c1 \\   / c3     or by c2-c4 (alt 1)
+           \\  |  /               \\ b /
+              b
+
+    The ring c1 c2 c3 c4 is ordered as returned by :func:`edge_ring`.
+    """
+    c1 = ring[alt]
+    c2 = ring[(alt + 1) % 4]
+    c3 = ring[(alt + 2) % 4]
+    c4 = ring[(alt + 3) % 4]
+    newq[0, 0], newq[0, 1], newq[0, 2], newq[0, 3] = a, c1, c2, c3
+    newq[1, 0], newq[1, 1], newq[1, 2], newq[1, 3] = a, c3, c4, c1
+    newq[2, 0], newq[2, 1], newq[2, 2], newq[2, 3] = c1, c2, c3, b
+    newq[3, 0], newq[3, 1], newq[3, 2], newq[3, 3] = c3, c4, c1, b
+
+
+# ----------------------------------------------------------------------------- swapping
+
+@njit(cache=True)
+def _push_unique(buf, n, v, om, stamp):
+    if om[v] == stamp:
+        return buf, n
+    om[v] = stamp
+    if n == buf.shape[0]:
+        nb = np.empty(2 * n, np.int64)
+        nb[:n] = buf
+        buf = nb
+    buf[n] = v
+    return buf, n + 1
+
+
+@njit(cache=True)
+def swap(S, seed, nseed, with_neighbours):
+    """Data-dependent swapping after an insertion (section 4, steps i-iv).
+
+    O = the seed tets (the new ones) and, if ``with_neighbours``, their face
+    neighbours (Definition 3).  In each round every configuration 1 (2-3 over each
+    interior face, 3-2 around each degree-3 edge) and configuration 2 (4-4 around
+    each degree-4 edge, both other diagonals) found in O is evaluated; the admissible
+    alternative (all new tets strictly positive) with the largest decrease of the
+    criterion sum is applied if that decrease exceeds ``rel_tol * before + abs_tol``
+    (gains at rounding level could otherwise cycle).  With the ``first`` option the
+    first such improving flip is applied instead.  O is then updated with the new
+    tets and their neighbours and the search repeats until nothing improves.
+    Returns the number of flips made.
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    alive = S[_ALIVE]
+    ctr = S[_CTR]
+    fopt = S[_FOPT]
+    om = S[_OMARK]
+    reltol = fopt[O_RELTOL]
+    abstol = fopt[O_ABSTOL]
+    first = fopt[O_FIRST] > 0.0
+    maxrounds = int(fopt[O_MAXROUNDS])
+    ctr[C_OSTAMP] += 1
+    st = ctr[C_OSTAMP]
+    O = np.empty(64, np.int64)
+    no = 0
+    for k in range(nseed):
+        t = seed[k]
+        O, no = _push_unique(O, no, t, om, st)
+    if with_neighbours:
+        for k in range(nseed):
+            for i in range(4):
+                u = nbr[seed[k], i]
+                if u >= 0:
+                    O, no = _push_unique(O, no, u, om, st)
+    old = np.empty(4, np.int64)
+    ring = np.empty(4, np.int64)
+    newq = np.empty((4, 4), np.int64)
+    best_old = np.empty(4, np.int64)
+    best_new = np.empty((4, 4), np.int64)
+    nflips = 0
+    for rnd in range(maxrounds):
+        best_gain = 0.0
+        best_kind = -1
+        best_nold = 0
+        best_nnew = 0
+        done = False
+        for oi in range(no):
+            t = O[oi]
+            if not alive[t] or om[t] != st:
+                continue
+            # configuration 1 as two tets: 2 -> 3 over each interior face
+            for i in range(4):
+                u = nbr[t, i]
+                if u < 0 or (om[u] == st and u < t):
+                    continue
+                config23(S, t, i, old, newq)
+                if not _positive(S, newq, 3):
+                    continue
+                before, after = _evaluate(S, old, 2, newq, 3)
+                gain = before - after
+                if gain > reltol * before + abstol and gain > best_gain:
+                    best_gain = gain
+                    best_kind = 0
+                    best_nold = 2
+                    best_nnew = 3
+                    best_old[:2] = old[:2]
+                    best_new[:3] = newq[:3]
+                    if first:
+                        done = True
+                        break
+            if done:
+                break
+            # configurations around edges: 3 -> 2 and 4 -> 4
+            for e in range(6):
+                a = tets[t, EDGES[e, 0]]
+                b = tets[t, EDGES[e, 1]]
+                k = edge_ring(S, t, a, b, old, ring)
+                if k != 3 and k != 4:
+                    continue
+                # evaluate each edge once: from its smallest tet id that is in O
+                skip = False
+                for j in range(k):
+                    if old[j] < t and om[old[j]] == st and alive[old[j]]:
+                        skip = True
+                if skip:
+                    continue
+                nalt = 1 if k == 3 else 2
+                for alt in range(nalt):
+                    if k == 3:
+                        quads32(a, b, ring, newq)
+                        nn = 2
+                    else:
+                        quads44(a, b, ring, alt, newq)
+                        nn = 4
+                    if not _positive(S, newq, nn):
+                        continue
+                    before, after = _evaluate(S, old, k, newq, nn)
+                    gain = before - after
+                    if gain > reltol * before + abstol and gain > best_gain:
+                        best_gain = gain
+                        best_kind = 1 if k == 3 else 2
+                        best_nold = k
+                        best_nnew = nn
+                        best_old[:k] = old[:k]
+                        best_new[:nn] = newq[:nn]
+                        if first:
+                            done = True
+                            break
+                if done:
+                    break
+            if done:
+                break
+        if best_kind < 0:
+            break
+        ids = _replace(S, best_old, best_nold, best_new, best_nnew)
+        if ctr[C_ERROR] != 0:
+            return nflips
+        ctr[C_FLIP23 + best_kind] += 1
+        nflips += 1
+        for k in range(ids.shape[0]):
+            O, no = _push_unique(O, no, ids[k], om, st)
+        for k in range(ids.shape[0]):
+            for i in range(4):
+                u = nbr[ids[k], i]
+                if u >= 0:
+                    O, no = _push_unique(O, no, u, om, st)
+        # drop dead entries now and then to keep O small
+        if no > 256:
+            w = 0
+            for r in range(no):
+                if alive[O[r]]:
+                    O[w] = O[r]
+                    w += 1
+                else:
+                    om[O[r]] = 0  # a recycled id must be able to re-enter O
+            no = w
+        if rnd == maxrounds - 1:
+            ctr[C_ROUNDCAP] += 1
+    return nflips
+
+
+@njit(cache=True)
+def global_pass(S):
+    """The optional final swap over all tetrahedra (end of section 4)."""
+    alive = S[_ALIVE]
+    hw = S[_CTR][C_HW]
+    seed = np.empty(hw, np.int64)
+    n = 0
+    for t in range(hw):
+        if alive[t]:
+            seed[n] = t
+            n += 1
+    return swap(S, seed, n, False)
+
+
+@njit(cache=True)
+def run_insertions(S, order, start, stop, tol_rms, n_total):
+    """Insert order[start:stop] one by one, each followed by swapping.
+
+    Stops early once sqrt(sum of squared residuals / n_total) <= tol_rms (if
+    tol_rms >= 0) or no residual exceeds the E_inf tolerance held in the options
+    (if it is >= 0).  Returns the position reached (exclusive).
+    """
+    ctr = S[_CTR]
+    tolinf = S[_FOPT][O_TOLINF]
+    for k in range(start, stop):
+        case, ids = insert_point(S, order[k])
+        if ctr[C_ERROR] != 0:
+            return k
+        swap(S, ids, ids.shape[0], True)
+        if ctr[C_ERROR] != 0:
+            return k + 1
+        if tol_rms >= 0.0 and np.sqrt(max(S[_ACC][0], 0.0) / n_total) <= tol_rms:
+            return k + 1
+        if tolinf >= 0.0 and ctr[C_ABOVE] == 0:
+            return k + 1
+    return stop
+
+
+@njit(cache=True)
+def fill_buckets(S, ids):
+    """Buckets, errors and residuals of a fresh mesh whose tets are ids (all points)."""
+    tets = S[_TETS]
+    F = S[_F]
+    N = F.shape[0]
+    covered = np.zeros(N, np.uint8)
+    ownvert = S[_FOPT][O_OWNVERT] > 0.0
+    ctr = S[_CTR]
+    pool = S[_POOL]
+    resid = S[_RESID]
+    for k in range(ids.shape[0]):
+        t = ids[k]
+        q0, q1, q2, q3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        top = ctr[C_POOLTOP]
+        S[_BSTART][t] = top
+        L = 0
+        sse = 0.0
+        mx = 0.0
+        cnt = 0
+        for p in range(N):
+            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            if not inside:
+                continue
+            if top + L >= pool.shape[0]:
+                ctr[C_ERROR] = ERR_POOLCAP
+                return
+            pool[top + L] = p
+            L += 1
+            r = F[p] - val
+            if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
+                sse += r * r
+                mx = max(mx, abs(r))
+                cnt += 1
+            if not covered[p]:
+                covered[p] = 1
+                resid[p] = r
+                S[_OWNER][p] = t
+        S[_BLEN][t] = L
+        ctr[C_POOLTOP] = top + L
+        S[_TSSE][t] = sse
+        S[_TMAX][t] = mx
+        S[_TCNT][t] = cnt
+    for p in range(N):
+        if not covered[p]:
+            ctr[C_ERROR] = ERR_UNCOVERED
+            return
+    acc = S[_ACC]
+    acc[0] = 0.0
+    tolinf = S[_FOPT][O_TOLINF]
+    ctr[C_ABOVE] = 0
+    for p in range(N):
+        acc[0] += resid[p] * resid[p]
+        if tolinf >= 0.0 and abs(resid[p]) > tolinf:
+            ctr[C_ABOVE] += 1
+
+
+@njit(cache=True)
+def residuals(S, out):
+    """f - L at every original point, from every live tet containing it (eqs. 19-20).
+
+    Returns the largest disagreement between two tets containing the same point
+    (zero for a continuous interpolant up to rounding).
+    """
+    tets = S[_TETS]
+    alive = S[_ALIVE]
+    F = S[_F]
+    pool = S[_POOL]
+    seen = np.zeros(F.shape[0], np.uint8)
+    worst = 0.0
+    for t in range(S[_CTR][C_HW]):
+        if not alive[t]:
+            continue
+        q0, q1, q2, q3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        s = S[_BSTART][t]
+        for j in range(S[_BLEN][t]):
+            p = pool[s + j]
+            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            r = F[p] - val
+            if seen[p]:
+                worst = max(worst, abs(r - out[p]))
+            else:
+                out[p] = r
+                seen[p] = 1
+    return worst
+
+
+# ----------------------------------------------------------------------------- Python side
+
+def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
+               abs_tol=None, tol_inf=None, first_improving=False, max_rounds=100000,
+               tet_capacity=None, pool_capacity=None):
+    """Allocate the flat arrays of an empty mesh over the given original points."""
+    P = np.ascontiguousarray(points, dtype=np.float64)
+    F = np.ascontiguousarray(values, dtype=np.float64)
+    N = F.shape[0]
+    IC = np.ascontiguousarray(ijk, dtype=np.int64) if ijk is not None else np.zeros((N, 3), np.int64)
+    cap = int(tet_capacity or (8 * N + 1024))
+    pcap = int(pool_capacity or (24 * N + 4096))
+    frange = float(F.max() - F.min()) if N else 0.0
+    if abs_tol is None:
+        abs_tol = 1e-12 * max(frange, 1e-300)
+        if criterion == "sse":
+            abs_tol = abs_tol**2 * N
+    if criterion not in CRITERIA:
+        raise ValueError(f"unknown swap criterion {criterion!r}: choose one of {sorted(CRITERIA)}")
+    fopt = np.array([1.0 if ijk is not None else 0.0, CRITERIA[criterion], 1.0 if own_vertices else 0.0,
+                     rel_tol, abs_tol, -1.0 if tol_inf is None else float(tol_inf),
+                     1.0 if first_improving else 0.0, float(max_rounds)])
+    S = (P, IC, F,
+         np.full((cap, 4), -1, np.int32), np.full((cap, 4), -1, np.int32), np.zeros(cap, np.uint8),
+         np.zeros(cap, np.int32), np.zeros(cap, np.int64), np.zeros(cap, np.int32),
+         np.zeros(pcap, np.int32), np.zeros(cap), np.zeros(cap), np.zeros(cap, np.int32),
+         np.zeros(N, np.int64), np.zeros(N), np.full(N, -1, np.int32), np.zeros(N, np.uint8),
+         np.zeros(N, np.int32), np.zeros(16, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64))
+    return S
+
+
+def face_neighbours(tets):
+    """Face-neighbour links of a list of tets (numpy; for an initial mesh)."""
+    tets = np.asarray(tets, np.int64)
+    M = tets.shape[0]
+    faces = np.concatenate([np.sort(np.delete(tets, i, axis=1), axis=1) for i in range(4)])
+    owner = np.tile(np.arange(M), 4)
+    local = np.repeat(np.arange(4), M)
+    order = np.lexsort(faces.T[::-1])
+    f = faces[order]
+    same = np.all(f[1:] == f[:-1], axis=1)
+    nbr = np.full((M, 4), -1, np.int64)
+    i = np.flatnonzero(same)
+    a, b = order[i], order[i + 1]
+    nbr[owner[a], local[a]] = owner[b]
+    nbr[owner[b], local[b]] = owner[a]
+    return nbr
+
+
+class TetMesh:
+    """A mesh over original points, with the named operations of section 4.
+
+    Parameters are those of :func:`make_state`.  ``start(tets)`` installs an
+    initial triangulation (e.g. of the fixed points).
+    """
+
+    def __init__(self, points, values, ijk=None, **options):
+        self.S = make_state(points, values, ijk, **options)
+        self.options = options
+
+    # -- state views
+    @property
+    def counters(self):
+        return self.S[_CTR]
+
+    @property
+    def error_code(self):
+        return int(self.S[_CTR][C_ERROR])
+
+    def _raise_on_error(self):
+        code = self.error_code
+        if code:
+            names = {ERR_TETCAP: "tet capacity exceeded", ERR_POOLCAP: "point-bucket capacity exceeded",
+                     ERR_LINK: "face matching failed", ERR_UNCOVERED: "a point left uncovered",
+                     ERR_DUPLICATE: "point coincides with a vertex (duplicate point)"}
+            raise MeshError(code, names.get(code, f"error {code}"))
+
+    def live_ids(self):
+        hw = self.S[_CTR][C_HW]
+        return np.flatnonzero(self.S[_ALIVE][:hw])
+
+    def tetrahedra(self):
+        """The live tets as an (M, 4) array of original point indices."""
+        return self.S[_TETS][self.live_ids()].astype(np.int64)
+
+    def neighbours(self):
+        ids = self.live_ids()
+        return ids, self.S[_NBR][ids].astype(np.int64)
+
+    def bucket(self, t):
+        s, L = self.S[_BSTART][t], self.S[_BLEN][t]
+        return self.S[_POOL][s:s + L].copy()
+
+    def vertices(self):
+        return np.flatnonzero(self.S[_ISVERT])
+
+    # -- operations
+    def start(self, tets):
+        """Install an initial triangulation (positively oriented tets) and fill its buckets."""
+        tets = np.asarray(tets, np.int64)
+        nbr = face_neighbours(tets)
+        ids = np.array([_alloc(self.S) for _ in range(len(tets))], np.int64)
+        self._raise_on_error()
+        self.S[_TETS][ids] = tets
+        self.S[_NBR][ids] = np.where(nbr >= 0, ids[np.maximum(nbr, 0)], -1)
+        verts = np.unique(tets)
+        self.S[_ISVERT][verts] = 1
+        self.S[_CTR][C_NVERT] = len(verts)
+        fill_buckets(self.S, ids)
+        self._raise_on_error()
+        return ids
+
+    def insert(self, p):
+        """Insert point p (cases i-iii); returns (case 1/2/3, new tet ids)."""
+        case, ids = insert_point(self.S, int(p))
+        self._raise_on_error()
+        return case, ids
+
+    def cone(self, p):
+        ids = cone_from_hull(self.S, int(p))
+        self._raise_on_error()
+        return ids
+
+    def swap(self, ids, with_neighbours=True):
+        ids = np.asarray(ids, np.int64)
+        n = swap(self.S, ids, len(ids), with_neighbours)
+        self._raise_on_error()
+        return n
+
+    def global_pass(self):
+        n = global_pass(self.S)
+        self._raise_on_error()
+        return n
+
+    def flip23(self, t, i, force=False):
+        """Apply the 2-3 flip of tet t over its face i if admissible (and improving unless force)."""
+        old = np.empty(4, np.int64)
+        newq = np.empty((4, 4), np.int64)
+        if not config23(self.S, int(t), int(i), old, newq) or not _positive(self.S, newq, 3):
+            return None
+        return self._apply(old, 2, newq, 3, force)
+
+    def flip_edge(self, t, a, b, alt=0, force=False):
+        """Apply the 3-2 (degree-3 edge) or 4-4 (degree-4 edge, diagonal alt) flip of edge (a, b)."""
+        old = np.empty(4, np.int64)
+        ring = np.empty(4, np.int64)
+        newq = np.empty((4, 4), np.int64)
+        k = edge_ring(self.S, int(t), int(a), int(b), old, ring)
+        if k == 3:
+            quads32(int(a), int(b), ring, newq)
+            nn = 2
+        elif k == 4:
+            quads44(int(a), int(b), ring, int(alt), newq)
+            nn = 4
+        else:
+            return None
+        if not _positive(self.S, newq, nn):
+            return None
+        return self._apply(old, k, newq, nn, force)
+
+    def evaluate(self, old, newq):
+        old = np.asarray(old, np.int64)
+        newq = np.asarray(newq, np.int64)
+        return _evaluate(self.S, old, len(old), newq, len(newq))
+
+    def _apply(self, old, nold, newq, nn, force):
+        if not force:
+            before, after = _evaluate(self.S, old, nold, newq, nn)
+            if not after < before:
+                return None
+        ids = _replace(self.S, old, nold, newq, nn)
+        self._raise_on_error()
+        return ids
+
+    def run(self, order, start, stop, tol_rms=-1.0):
+        k = run_insertions(self.S, np.asarray(order, np.int64), int(start), int(stop), float(tol_rms),
+                           float(self.S[_F].shape[0]))
+        self._raise_on_error()
+        return int(k)
+
+    def residuals(self):
+        """Residuals f - L at all original points, and the continuity defect."""
+        out = np.zeros(self.S[_F].shape[0])
+        worst = residuals(self.S, out)
+        return out, worst
+
+    def copy(self):
+        other = TetMesh.__new__(TetMesh)
+        other.S = tuple(a.copy() for a in self.S)
+        other.options = dict(self.options)
+        return other
+
+    @property
+    def flips(self):
+        c = self.S[_CTR]
+        return {"2-3": int(c[C_FLIP23]), "3-2": int(c[C_FLIP32]), "4-4": int(c[C_FLIP44])}
+
+    @property
+    def cases(self):
+        c = self.S[_CTR]
+        return {"tet": int(c[C_CASE1]), "face": int(c[C_CASE2]), "edge": int(c[C_CASE3])}
+
+
+class MeshError(RuntimeError):
+    """An internal failure of the mesh kernel (capacity or consistency)."""
+
+    def __init__(self, code, message):
+        super().__init__(message)
+        self.code = code

@@ -1,0 +1,331 @@
+"""The whole method: :func:`reduce` (sections 2-5 put together).
+
+1. curvature K of every point from a local least-squares quadratic (section 2);
+2. fixed points and the ranked candidates (section 3);
+3. the triangulation of the fixed points, the first candidate joined to every
+   boundary triangle, then every further candidate inserted in order with
+   data-dependent swapping after each insertion (section 4);
+4. snapshots at the requested counts with E_RMS and E_inf, with and without the
+   boundary points (section 5).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from . import mesh as _mesh
+from .data import PointData, resolve_function, sample_grid
+from .errors import error_norms
+from .errors_input import InputError
+from .selection import TIE_ORDERS, candidate_points, count_for_fraction, rank_candidates, validate_fractions
+from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles, kuhn_tetrahedra
+
+__all__ = ["reduce", "ReductionResult", "Snapshot", "DEFAULTS", "OPTION_DOCS"]
+
+#: The paper's open choices and our defaults (the README's options table is built from these).
+DEFAULTS = {
+    "method": "paper",
+    "criterion": "rms",
+    "candidates": "all",
+    "tie_order": "index",
+    "own_vertices": True,
+    "final_pass": False,
+    "first_improving": False,
+    "boundary_diagonals": "kuhn",
+    "curvature": "direct",
+    "rel_tol": 1e-9,
+    "quantum": 1e-9,
+    "seed": 0,
+}
+
+OPTION_DOCS = {
+    "criterion": "swap criterion: sum of tetrahedral RMS errors (eq. 14) 'rms', of max errors (eq. 15) 'max', "
+                 "or squared residuals over the configuration's points 'sse'",
+    "candidates": "'all' non-fixed points (face and edge points included; Table 1 needs them) or 'interior' only",
+    "tie_order": "order among equal quantised curvatures: 'index', 'reverse', 'random' (seeded), 'centre'",
+    "own_vertices": "a tet's error (eqs. 14-15) includes its own four vertices (zero residual) in N",
+    "final_pass": "after reaching each snapshot count, swap over all tets (end of section 4); applied to a copy",
+    "first_improving": "apply the first improving flip in O instead of the best one",
+    "boundary_diagonals": "diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored'",
+    "curvature": "curvature estimator: 'direct' least-squares quadratic in (x, y, z)",
+    "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
+    "quantum": "relative step to which K is rounded before sorting (rounding noise stays a tie)",
+}
+
+
+@dataclass
+class Snapshot:
+    """The mesh when ``n_selected`` points are selected.
+
+    ``tets`` index the original points; ``errors`` holds E_rms, E_rms_interior,
+    E_inf, E_inf_interior; ``seconds`` is the wall time from the start of the run
+    until this snapshot (curvature included).
+    """
+
+    fraction: float
+    n_selected: int
+    selected: np.ndarray
+    tets: np.ndarray
+    residuals: np.ndarray
+    errors: dict
+    seconds: float
+    flips: dict = field(default_factory=dict)
+
+
+@dataclass
+class ReductionResult:
+    """What :func:`reduce` returns.
+
+    Attributes
+    ----------
+    data : PointData
+    selected : (m,) int
+        Selected point indices in insertion order: fixed points first, then the
+        candidates as inserted (``selected[:k]`` is the selection of size k).
+    curvature : (N,) float
+        Absolute curvature K of every point (eq. 10).
+    order : (M,) int
+        All candidates in ranked order.
+    snapshots : list of Snapshot
+        One per requested fraction/count, ascending by count.
+    options : dict
+        Every option used, defaults included.
+    timings : dict
+        Seconds for ``curvature``, ``selection`` (insertion and swapping),
+        ``errors``, and ``total``.
+    stats : dict
+        Insertion cases and flip counts at the end of the run.
+    """
+
+    data: PointData
+    selected: np.ndarray
+    curvature: np.ndarray
+    order: np.ndarray
+    snapshots: list
+    options: dict
+    timings: dict
+    stats: dict
+
+    def snapshot(self, fraction):
+        """The snapshot for ``fraction`` (nearest match)."""
+        return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
+
+    def errors_frame(self):
+        """One row per snapshot with the columns of ``errors.csv``."""
+        import pandas as pd
+
+        rows = []
+        for s in self.snapshots:
+            rows.append({
+                "function": self.data.name,
+                "n": self.data.meta.get("n", (self.data.shape[0] - 1) if self.data.shape else ""),
+                "method": self.options["method"],
+                "values": self.options.get("values", "data"),
+                "fraction": s.fraction,
+                "n_selected": s.n_selected,
+                **{k: s.errors[k] for k in ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")},
+                "seconds": round(s.seconds, 4),
+            })
+        return pd.DataFrame(rows)
+
+
+def _check_choice(name, value, choices):
+    if value not in choices:
+        raise InputError(f"unknown {name} {value!r}: choose one of {', '.join(map(str, choices))}")
+
+
+def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, method="paper",
+           criterion="rms", candidates="all", tie_order="index", own_vertices=True, final_pass=False,
+           first_improving=False, boundary_diagonals="kuhn", curvature="direct", rel_tol=1e-9,
+           quantum=1e-9, seed=0, check=None, progress=None):
+    """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
+
+    Parameters
+    ----------
+    data : PointData, int or str
+        The data; a Table-1 function number or name is sampled on the ``(n+1)^3``
+        grid of eq. (18).
+    fractions : sequence of float in (0, 1], optional
+        Stop at these fractions of all points (fixed points included, rounded half
+        up).  One run goes to the largest; the others are snapshots on the way.
+    count : int, optional
+        Stop at this number of points instead.
+    tol_rms, tol_inf : float, optional
+        Stop as soon as E_RMS (eq. 19) or E_inf (eq. 20) over all points is at or
+        below the tolerance (or when every candidate is inserted).
+    method : {"paper"}
+        Curvature-ranked selection with data-dependent swapping.
+    criterion, candidates, tie_order, own_vertices, final_pass, first_improving,
+    boundary_diagonals, curvature, rel_tol, quantum, seed
+        The paper's open choices; see :data:`OPTION_DOCS` and the README.
+    check : callable, optional
+        Called as ``check(mesh)`` after the first insertion and at every snapshot
+        (tests pass :func:`trivsel.check.check_mesh`).
+
+    Returns
+    -------
+    ReductionResult
+
+    Raises
+    ------
+    InputError
+        For bad fractions, counts, tolerances or options, with a one-line message.
+    """
+    t_start = time.perf_counter()
+    if not isinstance(data, PointData):
+        data = sample_grid(resolve_function(data), n)
+    _check_choice("method", method, ("paper",))
+    _check_choice("criterion", criterion, tuple(_mesh.CRITERIA))
+    _check_choice("candidate set", candidates, ("all", "interior"))
+    _check_choice("tie order", tie_order, TIE_ORDERS)
+    _check_choice("boundary diagonals", boundary_diagonals, ("kuhn", "mirrored"))
+    _check_choice("curvature estimator", curvature, ("direct",))
+    fractions = validate_fractions(fractions)
+    N = data.n_points
+    for name, tol in (("tol_rms", tol_rms), ("tol_inf", tol_inf)):
+        if tol is not None and not (np.isfinite(tol) and tol >= 0):
+            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
+    if count is not None and (isinstance(count, bool) or int(count) != count or not 1 <= count <= N):
+        raise InputError(f"count must be an integer in [1, {N}], got {count!r}")
+    if not fractions and count is None and tol_rms is None and tol_inf is None:
+        raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
+
+    options = dict(method=method, criterion=criterion, candidates=candidates, tie_order=tie_order,
+                   own_vertices=bool(own_vertices), final_pass=bool(final_pass),
+                   first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
+                   curvature=curvature, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
+                   fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values="data")
+
+    # --- fixed points and initial triangulation of all points (section 3)
+    if data.is_grid:
+        fixed = cube_corners(data.shape)
+        start_tets = box_tetrahedra(data.shape, boundary_diagonals)
+        all_tets = kuhn_tetrahedra(data.shape)
+    else:
+        _, fixed = hull_triangles(data.points)
+        local = delaunay_tetrahedra(data.points[fixed])
+        start_tets = fixed[local]
+        all_tets = delaunay_tetrahedra(data.points)
+    interior = data.interior_mask()
+
+    # --- targets
+    n_fixed = len(fixed)
+    targets = sorted({count_for_fraction(f, N) for f in fractions} | ({int(count)} if count is not None else set()))
+    cand = candidate_points(N, fixed, interior, candidates)
+    n_max = n_fixed + len(cand)
+    for m in targets:
+        if m < n_fixed:
+            raise InputError(f"target of {m} points is fewer than the {n_fixed} fixed points "
+                             f"(fractions {fractions}, N = {N})")
+        if m > n_max:
+            raise InputError(f"target of {m} points exceeds the {n_max} selectable points "
+                             f"({n_fixed} fixed + {len(cand)} candidates of set {candidates!r})")
+    if not targets:  # tolerance only
+        targets = [n_max]
+
+    # --- curvature (section 2) and ranking (section 3)
+    t0 = time.perf_counter()
+    from .curvature import absolute_curvature
+
+    K = absolute_curvature(data.points, data.values, tets=all_tets)
+    t_curv = time.perf_counter() - t0
+    order = rank_candidates(K, cand, tie_order=tie_order, points=data.points, seed=seed, quantum=quantum)
+
+    # --- insertion with data-dependent swapping (section 4)
+    t1 = time.perf_counter()
+    tet_cap = None
+    pool_cap = None
+    for attempt in range(4):
+        try:
+            result = _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, tol_inf,
+                          check, progress, t_start, tet_cap, pool_cap)
+            break
+        except _mesh.MeshError as exc:
+            if exc.code == _mesh.ERR_TETCAP:
+                tet_cap = 2 * (tet_cap or 8 * N + 1024)
+            elif exc.code == _mesh.ERR_POOLCAP:
+                pool_cap = 2 * (pool_cap or 24 * N + 4096)
+            else:
+                raise
+    else:  # pragma: no cover - capacities doubled 4 times
+        raise RuntimeError("mesh capacity could not be satisfied")
+    snapshots, stats, t_err = result
+    t_total = time.perf_counter() - t_start
+    timings = {"curvature": t_curv, "selection": t_total - t_curv - t_err - (t1 - t0 - t_curv),
+               "errors": t_err, "total": t_total}
+    last = snapshots[-1].n_selected
+    selected = np.concatenate([fixed, order[: last - n_fixed]])
+    return ReductionResult(data=data, selected=selected, curvature=K, order=order, snapshots=snapshots,
+                           options=options, timings=timings, stats=stats)
+
+
+def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, tol_inf, check, progress,
+         t_start, tet_cap, pool_cap):
+    N = data.n_points
+    tm = _mesh.TetMesh(data.points, data.values, data.ijk, criterion=options["criterion"],
+                       own_vertices=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
+                       first_improving=options["first_improving"], tet_capacity=tet_cap,
+                       pool_capacity=pool_cap)
+    tm.start(start_tets)
+    n_fixed = len(fixed)
+    pos = 0  # candidates inserted so far
+    t_err = 0.0
+    snapshots = []
+    stop_tol = -1.0 if tol_rms is None else float(tol_rms)
+    reached_tol = False
+
+    def tolerance_met():
+        r, _ = tm.residuals()
+        e = error_norms(r, interior)
+        return ((tol_rms is not None and e["E_rms"] <= tol_rms)
+                or (tol_inf is not None and e["E_inf"] <= tol_inf))
+
+    if (tol_rms is not None or tol_inf is not None) and tolerance_met():
+        reached_tol = True
+    for target in targets:
+        need = target - n_fixed
+        if pos < need and not reached_tol:
+            if pos == 0:
+                p = order[0]
+                ids = tm.cone(p)  # join the first point to every boundary triangle
+                if len(ids) == 0:  # not strictly inside: insert into the fixed points' mesh
+                    _, ids = tm.insert(p)
+                tm.swap(ids)
+                pos = 1
+                if check is not None:
+                    check(tm)
+            if pos < need:
+                new_pos = tm.run(order, pos, need, stop_tol)
+                reached_tol = new_pos < need or (tol_rms is None and tol_inf is None and False)
+                if tol_rms is not None or tol_inf is not None:
+                    reached_tol = reached_tol or tolerance_met()
+                pos = new_pos
+            if progress is not None:
+                progress(n_fixed + pos, N)
+        te = time.perf_counter()
+        snap_mesh = tm
+        if options["final_pass"]:
+            snap_mesh = tm.copy()
+            snap_mesh.global_pass()
+        if check is not None:
+            check(snap_mesh)
+        r, worst = snap_mesh.residuals()
+        errors = error_norms(r, interior)
+        m = n_fixed + pos
+        snapshots.append(Snapshot(fraction=m / N, n_selected=m, selected=np.concatenate([fixed, order[:pos]]),
+                                  tets=snap_mesh.tetrahedra(), residuals=r, errors=errors,
+                                  seconds=time.perf_counter() - t_start, flips=snap_mesh.flips))
+        t_err += time.perf_counter() - te
+        if reached_tol:
+            break
+    # fractions as requested (not m / N) for the rows that hit their target exactly
+    req = {count_for_fraction(f, N): f for f in options["fractions"]}
+    for s in snapshots:
+        if s.n_selected in req:
+            s.fraction = req[s.n_selected]
+    stats = {"flips": tm.flips, "cases": tm.cases, "tets": int(len(tm.live_ids())),
+             "round_cap_hits": int(tm.counters[_mesh.C_ROUNDCAP])}
+    return snapshots, stats, t_err
