@@ -1,0 +1,182 @@
+"""Reading user data and writing results.
+
+Input formats (:func:`load`):
+
+* ``.vti`` (VTK image data) and legacy ``.vtk`` files holding structured points:
+  a regular grid; it takes the exact integer path and keeps its origin and spacing;
+* ``.vtu``, ``.vtp``, ``.vtk`` (unstructured) and other pyvista-readable meshes:
+  scattered points with a point-data array;
+* ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
+  (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
+* ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``).
+
+Outputs (:func:`write_outputs`) go first to a temporary folder beside the target
+and are moved into place only when all of them are complete, so a failure never
+leaves partial or corrupt files.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from .data import PointData, grid_from_array, scattered
+from .errors_input import InputError
+
+__all__ = ["load", "write_outputs", "snapshot_to_pyvista", "fraction_label"]
+
+
+def fraction_label(fraction: float) -> str:
+    """How a fraction appears in file names: ``f"{fraction:g}"`` (``mesh_0.5.vtu``)."""
+    return f"{float(fraction):g}"
+
+
+def _pick_array(names, array, path):
+    names = list(names)
+    if array is not None:
+        if array not in names:
+            raise InputError(f"array {array!r} not found in {path}; available: {', '.join(names) or 'none'}")
+        return array
+    if len(names) == 1:
+        return names[0]
+    if not names:
+        raise InputError(f"{path} has no point-data array to reduce")
+    raise InputError(f"{path} has several point-data arrays ({', '.join(names)}); choose one with --array")
+
+
+def load(path, array: str | None = None) -> PointData:
+    """Read a user file into :class:`~trivsel.data.PointData` (see the module docstring)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"input file {str(p)!r} does not exist")
+    ext = p.suffix.lower()
+    name = p.stem
+    if ext == ".csv":
+        import pandas as pd
+
+        try:
+            df = pd.read_csv(p)
+        except Exception as exc:  # pandas raises many types
+            raise InputError(f"cannot read CSV {str(p)!r}: {exc}") from None
+        cols = {c.strip().lower(): c for c in df.columns}
+        missing = [c for c in ("x", "y", "z") if c not in cols]
+        if missing:
+            raise InputError(f"CSV {str(p)!r} lacks column(s) {', '.join(missing)}; need x, y, z and a value column")
+        others = [c for c in df.columns if c.strip().lower() not in ("x", "y", "z")]
+        if array is None and "value" in cols:
+            array = cols["value"]
+        col = _pick_array(others, array, p)
+        try:
+            pts = df[[cols["x"], cols["y"], cols["z"]]].to_numpy(float)
+            vals = df[col].to_numpy(float)
+        except ValueError as exc:
+            raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
+        return scattered(pts, vals, name=name)
+    if ext == ".npz":
+        try:
+            z = np.load(p)
+        except Exception as exc:
+            raise InputError(f"cannot read {str(p)!r}: {exc}") from None
+        key = array or "values"
+        if key not in z:
+            raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
+        v = np.asarray(z[key])
+        if v.ndim == 3:
+            return grid_from_array(v, z["origin"] if "origin" in z else (0, 0, 0),
+                                   z["spacing"] if "spacing" in z else (1, 1, 1), name=name)
+        if "points" not in z:
+            raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
+        return scattered(z["points"], v, name=name)
+    import pyvista as pv
+
+    try:
+        mesh = pv.read(str(p))
+    except Exception as exc:
+        raise InputError(f"cannot read {str(p)!r} with pyvista: {exc}") from None
+    col = _pick_array(mesh.point_data.keys(), array, p)
+    vals = np.asarray(mesh.point_data[col])
+    if vals.ndim != 1:
+        raise InputError(f"array {col!r} in {str(p)!r} has {vals.shape[1]} components; need a scalar array")
+    if isinstance(mesh, pv.ImageData):
+        nx, ny, nz = mesh.dimensions
+        if min(nx, ny, nz) < 2:
+            raise InputError(f"image {str(p)!r} has dimensions {mesh.dimensions}: need >= 2 points per axis")
+        if np.any(np.asarray(mesh.direction_matrix) != np.eye(3)):
+            raise InputError(f"image {str(p)!r} has a rotated direction matrix; not supported")
+        v3 = vals.reshape((nz, ny, nx)).transpose(2, 1, 0)  # VTK order is x fastest
+        return grid_from_array(v3, mesh.origin, mesh.spacing, name=name)
+    return scattered(np.asarray(mesh.points, float), vals, name=name)
+
+
+def snapshot_to_pyvista(result, snapshot):
+    """The snapshot's mesh as a pyvista UnstructuredGrid over the selected points.
+
+    Point data: ``value`` (the selected points' own values), ``original_index`` and
+    ``curvature`` (K of eq. 10).
+    """
+    import pyvista as pv
+
+    sel = np.unique(snapshot.tets)
+    remap = np.full(result.data.n_points, -1, np.int64)
+    remap[sel] = np.arange(len(sel))
+    cells = np.hstack([np.full((len(snapshot.tets), 1), 4), remap[snapshot.tets]]).ravel()
+    types = np.full(len(snapshot.tets), pv.CellType.TETRA, np.uint8)
+    grid = pv.UnstructuredGrid(cells, types, result.data.points[sel])
+    grid.point_data["value"] = result.data.values[sel]
+    grid.point_data["original_index"] = sel
+    grid.point_data["curvature"] = result.curvature[sel]
+    grid.field_data["fraction"] = np.array([snapshot.fraction])
+    return grid
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return obj.tolist()
+    if isinstance(obj, np.generic):
+        return obj.item()
+    return obj
+
+
+def write_outputs(result, out_dir, extra: dict | None = None):
+    """Write ``errors.csv``, ``mesh_<fraction>.vtu`` and ``result.json`` into ``out_dir``.
+
+    All files are written to a temporary folder first and moved into ``out_dir``
+    only when every one is complete.
+    """
+    out = Path(out_dir)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=".trivsel-", dir=out.parent))
+    try:
+        result.errors_frame().to_csv(tmp / "errors.csv", index=False)
+        for s in result.snapshots:
+            snapshot_to_pyvista(result, s).save(str(tmp / f"mesh_{fraction_label(s.fraction)}.vtu"))
+        info = {
+            "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
+                     "shape": result.data.shape, "origin": result.data.origin, "spacing": result.data.spacing,
+                     **result.data.meta},
+            "options": result.options,
+            "timings": result.timings,
+            "stats": result.stats,
+            "snapshots": [{"fraction": s.fraction, "n_selected": s.n_selected, "errors": s.errors,
+                           "seconds": s.seconds, "n_tets": int(len(s.tets)), "flips": s.flips}
+                          for s in result.snapshots],
+            "selected": result.selected,
+            **(extra or {}),
+        }
+        with open(tmp / "result.json", "w") as fh:
+            json.dump(_jsonable(info), fh, indent=1)
+        out.mkdir(parents=True, exist_ok=True)
+        for f in sorted(tmp.iterdir()):
+            os.replace(f, out / f.name)
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+    return out
