@@ -1167,6 +1167,20 @@ class TetMesh:
         other.options = dict(self.options)
         return other
 
+    def criterion_sum(self):
+        """The quantity the swaps lower: sum over live tets of their RMS (eq. 14) or max
+        (eq. 15) error, or, for the SSE criterion, the squared residuals of all points
+        (each counted once)."""
+        ids = self.live_ids()
+        sse, mx, cnt = self.S[_TSSE][ids], self.S[_TMAX][ids], self.S[_TCNT][ids]
+        c = self.S[_FOPT][O_CRIT]
+        if c == 0:
+            return float(np.sum(np.sqrt(np.divide(sse, cnt, out=np.zeros_like(sse), where=cnt > 0))))
+        if c == 1:
+            return float(np.sum(mx))
+        r = self.S[_RESID]
+        return float(np.dot(r, r))
+
     @property
     def flips(self):
         c = self.S[_CTR]

@@ -1,0 +1,159 @@
+"""The CLI: outputs, user file formats, and one-line errors with no output for bad input."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pandas as pd
+import pytest
+import pyvista as pv
+
+from trivsel.cli import main
+from trivsel.data import sample_grid
+
+ERRORS_COLUMNS = ["function", "n", "method", "values", "fraction", "n_selected", "E_rms", "E_rms_interior",
+                  "E_inf", "E_inf_interior", "seconds"]
+
+
+def test_reduce_function_writes_errors_meshes_and_json(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert main(["reduce", "--function", "4", "--n", "6", "--fractions", "0.5", "0.2", "0.1", "--out", str(out)]) == 0
+    df = pd.read_csv(out / "errors.csv")
+    assert list(df.columns) == ERRORS_COLUMNS
+    assert sorted(df.fraction) == [0.1, 0.2, 0.5]
+    assert set(df.method) == {"paper"} and set(df["values"]) == {"data"}
+    for f in ("0.5", "0.2", "0.1"):
+        m = pv.read(out / f"mesh_{f}.vtu")
+        row = df[df.fraction == float(f)].iloc[0]
+        assert m.n_points == row.n_selected
+        assert set(m.point_data.keys()) >= {"value", "original_index", "curvature"}
+        d = sample_grid(4, 6)
+        assert np.allclose(m.points, d.points[m.point_data["original_index"]])
+        assert np.allclose(m.point_data["value"], d.values[m.point_data["original_index"]])
+        assert m.volume == pytest.approx(8.0)
+    info = json.loads((out / "result.json").read_text())
+    assert info["options"]["criterion"] == "rms" and len(info["selected"]) == df.n_selected.max()
+    assert not [p for p in tmp_path.iterdir() if p.name.startswith(".trivsel-")]
+
+
+def test_vti_grid_takes_the_exact_path_and_keeps_spacing(tmp_path):
+    d = sample_grid(4, 6)
+    img = pv.ImageData(dimensions=(7, 7, 7), spacing=(2 / 6,) * 3, origin=(-1, -1, -1))
+    # VTK order is x fastest; our values are C order over (i, j, k)
+    img.point_data["f"] = d.values.reshape(7, 7, 7).transpose(2, 1, 0).ravel()
+    path = tmp_path / "blob.vti"
+    img.save(path)
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main(["reduce", str(path), "--fractions", "0.3", "--out", str(a)]) == 0
+    assert main(["reduce", "--function", "4", "--n", "6", "--fractions", "0.3", "--out", str(b)]) == 0
+    ea, eb = pd.read_csv(a / "errors.csv"), pd.read_csv(b / "errors.csv")
+    assert ea.function[0] == "blob"
+    assert np.allclose(ea[["E_rms", "E_inf", "E_rms_interior"]], eb[["E_rms", "E_inf", "E_rms_interior"]])
+    info = json.loads((a / "result.json").read_text())
+    assert info["data"]["grid"] and np.allclose(info["data"]["spacing"], 2 / 6)
+    # physical placement kept: shift the origin and the mesh moves with it
+    img.origin = (10, 0, 0)
+    img.save(path)
+    c = tmp_path / "c"
+    assert main(["reduce", str(path), "--fractions", "0.3", "--out", str(c)]) == 0
+    assert pv.read(c / "mesh_0.3.vtu").bounds[0] == pytest.approx(10.0)
+
+
+def test_csv_and_npz_scattered_input(tmp_path):
+    rng = np.random.default_rng(1)
+    p = rng.random((300, 3))
+    v = np.exp(-((p - 0.5) ** 2).sum(1) * 4)
+    pd.DataFrame({"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "value": v}).to_csv(tmp_path / "pts.csv", index=False)
+    np.savez(tmp_path / "pts.npz", points=p, values=v)
+    for name in ("pts.csv", "pts.npz"):
+        out = tmp_path / name.replace(".", "_")
+        assert main(["reduce", str(tmp_path / name), "--fractions", "0.5", "--out", str(out)]) == 0
+        assert pd.read_csv(out / "errors.csv").n_selected[0] == 150
+    a = pd.read_csv(tmp_path / "pts_csv" / "errors.csv")
+    b = pd.read_csv(tmp_path / "pts_npz" / "errors.csv")
+    assert np.allclose(a.E_rms, b.E_rms)
+
+
+def _bad_files(tmp):
+    rng = np.random.default_rng(2)
+    p = rng.random((40, 3))
+    v = p[:, 0]
+    cases = {}
+    df = pd.DataFrame({"x": p[:, 0], "y": p[:, 1], "z": p[:, 2], "value": v})
+    nan = df.copy()
+    nan.loc[5, "value"] = np.nan
+    nan.to_csv(tmp / "nan.csv", index=False)
+    cases["nan.csv"] = "non-finite value nan at point 5"
+    dup = pd.concat([df, df.iloc[[3]]])
+    dup.to_csv(tmp / "dup.csv", index=False)
+    cases["dup.csv"] = "duplicate point"
+    df.iloc[:3].to_csv(tmp / "few.csv", index=False)
+    cases["few.csv"] = "too few points"
+    flat = df.copy()
+    flat["z"] = 0.0
+    flat.to_csv(tmp / "flat.csv", index=False)
+    cases["flat.csv"] = "coplanar"
+    df.drop(columns="z").to_csv(tmp / "noz.csv", index=False)
+    cases["noz.csv"] = "lacks column(s) z"
+    return cases
+
+
+def _run_cli(*args):
+    return subprocess.run([sys.executable, "-m", "trivsel", *args], capture_output=True, text=True)
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--function", "7"], "unknown function '7'"),
+    (["--function", "1", "--fractions", "0"], "fraction 0.0 is outside (0, 1]"),
+    (["--function", "1", "--fractions", "1.5"], "fraction 1.5 is outside (0, 1]"),
+    (["--function", "1", "--n", "1"], "n must be an integer >= 2, got 1"),
+    (["missing.vti"], "does not exist"),
+])
+def test_bad_cli_arguments_one_line_error_no_output(tmp_path, args, message):
+    out = tmp_path / "out"
+    extra = [] if "--fractions" in args else ["--fractions", "0.5"]
+    p = _run_cli("reduce", *args, *extra, "--out", str(out))
+    assert p.returncode == 2
+    lines = p.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("trivsel: error: ") and message in lines[0], p.stderr
+    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_bad_input_files_one_line_error_no_output(tmp_path):
+    data = tmp_path / "data"
+    data.mkdir()
+    for name, message in _bad_files(data).items():
+        out = tmp_path / ("out_" + name)
+        p = _run_cli("reduce", str(data / name), "--fractions", "0.5", "--out", str(out))
+        assert p.returncode == 2, (name, p.stderr)
+        lines = p.stderr.strip().splitlines()
+        assert len(lines) == 1 and message in lines[0], (name, p.stderr)
+        assert not out.exists()
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["data"]
+
+
+def test_array_choice_required_when_ambiguous(tmp_path):
+    img = pv.ImageData(dimensions=(4, 4, 4))
+    img.point_data["a"] = np.arange(64.0)
+    img.point_data["b"] = np.arange(64.0) ** 2
+    img.save(tmp_path / "two.vti")
+    p = _run_cli("reduce", str(tmp_path / "two.vti"), "--fractions", "0.5", "--out", str(tmp_path / "o"))
+    assert p.returncode == 2 and "choose one with --array" in p.stderr
+    p = _run_cli("reduce", str(tmp_path / "two.vti"), "--array", "c", "--fractions", "0.5", "--out", str(tmp_path / "o"))
+    assert p.returncode == 2 and "array 'c' not found" in p.stderr
+    assert main(["reduce", str(tmp_path / "two.vti"), "--array", "b", "--fractions", "0.5",
+                 "--out", str(tmp_path / "o")]) == 0
+
+
+def test_compare_command(tmp_path):
+    out = tmp_path / "o"
+    assert main(["reduce", "--function", "2", "--n", "4", "--fractions", "0.5", "--out", str(out)]) == 0
+    golden = out / "errors.csv"
+    assert main(["compare", str(golden), str(golden)]) == 0
+    df = pd.read_csv(golden)
+    df.loc[0, "E_rms"] *= 1.01
+    df.to_csv(tmp_path / "moved.csv", index=False)
+    p = _run_cli("compare", str(tmp_path / "moved.csv"), str(golden), "--rtol", "1e-3")
+    assert p.returncode == 1 and "E_rms" in p.stdout

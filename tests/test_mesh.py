@@ -1,0 +1,267 @@
+"""The mesh kernel (section 4): insertion cases i-iii, flips, swapping, validity after every operation."""
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from trivsel.check import MeshInvalid, check_mesh
+from trivsel.mesh import TetMesh, _orient
+from trivsel.triangulation import box_tetrahedra, delaunay_tetrahedra, hull_triangles, orient3d_float
+
+FIXTURES = Path(__file__).parent / "fixtures"
+
+
+def _mesh(points, tets, values=None, exact=True, hull_volume=None, **opt):
+    points = np.asarray(points, float)
+    if values is None:
+        values = points[:, 0] ** 2 + 0.5 * points[:, 1] * points[:, 2]
+    ijk = np.asarray(points, np.int64) if exact else None
+    tm = TetMesh(points, values, ijk, **opt)
+    tm.start(np.asarray(tets))
+    check_mesh(tm, hull_volume=hull_volume)
+    return tm
+
+
+def _volume(tm):
+    return orient3d_float(tm.S[0], tm.tetrahedra()).sum() / 6
+
+
+# A positively oriented tet and points placed in its interior, on a face, on an edge.
+TET = [[0, 0, 0], [6, 0, 0], [0, 6, 0], [0, 0, 6]]
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_case_i_interior_point_splits_one_into_four(exact):
+    tm = _mesh(TET + [[1, 1, 1]], [[0, 1, 2, 3]], exact=exact)
+    case, ids = tm.insert(4)
+    assert case == 1 and len(ids) == 4
+    check_mesh(tm)
+    assert _volume(tm) == pytest.approx(36.0)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_case_ii_point_on_hull_face_splits_into_three(exact):
+    tm = _mesh(TET + [[2, 2, 0]], [[0, 1, 2, 3]], exact=exact)  # on face z = 0
+    case, ids = tm.insert(4)
+    assert case == 2 and len(ids) == 3
+    check_mesh(tm)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_case_ii_point_on_shared_face_splits_both_tets(exact):
+    # two tets sharing face (1, 2, 3); the point lies inside that face
+    pts = TET + [[6, 6, 6], [2, 2, 2]]
+    tets = [[0, 1, 2, 3], [4, 1, 3, 2]]
+    tm = _mesh(pts, tets, exact=exact)
+    case, ids = tm.insert(5)
+    assert case == 2 and len(ids) == 6
+    check_mesh(tm)
+    assert _volume(tm) == pytest.approx(36.0 + 36.0 * 2)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_case_iii_point_on_hull_edge_splits_into_two(exact):
+    tm = _mesh(TET + [[3, 0, 0]], [[0, 1, 2, 3]], exact=exact)
+    case, ids = tm.insert(4)
+    assert case == 3 and len(ids) == 2
+    check_mesh(tm)
+
+
+def _octahedron():
+    # poles a = 0 (top), b = 1 (bottom); equator 2..5; four tets around the axis a-b
+    pts = [[0, 0, 2], [0, 0, -2], [2, 0, 0], [0, 2, 0], [-2, 0, 0], [0, -2, 0]]
+    tets = []
+    for k in range(4):
+        c, d = 2 + k, 2 + (k + 1) % 4
+        t = [0, 1, c, d]
+        if orient3d_float(np.array(pts, float), np.array([t]))[0] < 0:
+            t = [0, 1, d, c]
+        tets.append(t)
+    return pts, tets
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_case_iii_point_on_interior_edge_splits_the_whole_ring(exact):
+    pts, tets = _octahedron()
+    tm = _mesh(pts + [[0, 0, 1]], tets, exact=exact)
+    case, ids = tm.insert(6)
+    assert case == 3 and len(ids) == 8
+    check_mesh(tm)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_flip44_to_either_diagonal_and_back(exact):
+    pts, tets = _octahedron()
+    tm = _mesh(pts, tets, exact=exact)
+    vol = _volume(tm)
+    t = tm.live_ids()[0]
+    for alt, diag in ((0, None), (1, None)):
+        tm2 = tm.copy()
+        ids = tm2.flip_edge(t, 0, 1, alt=alt, force=True)
+        assert ids is not None and len(ids) == 4
+        check_mesh(tm2)
+        assert _volume(tm2) == pytest.approx(vol)
+        edges = {tuple(sorted((a, b))) for tet in tm2.tetrahedra() for a in tet for b in tet if a != b}
+        assert (0, 1) not in edges
+        # and back: the new diagonal has degree 4 again
+        new_diag = [e for e in [(2, 4), (3, 5)] if e in edges]
+        assert len(new_diag) == 1
+        a, b = new_diag[0]
+        t2 = next(x for x in tm2.live_ids() if a in tm2.S[3][x] and b in tm2.S[3][x])
+        assert tm2.flip_edge(t2, a, b, alt=0, force=True) is not None
+        check_mesh(tm2)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_flip23_then_flip32_restores_the_pair(exact):
+    # d above and e below a triangle; segment d-e pierces it: 2-3 admissible
+    pts = [[0, 0, 0], [6, 0, 0], [0, 6, 0], [1, 1, 4], [2, 2, -4]]
+    tets = [[0, 1, 2, 3], [0, 2, 1, 4]]
+    tm = _mesh(pts, tets, exact=exact)
+    vol = _volume(tm)
+    t = tm.live_ids()[0]
+    i = int(np.flatnonzero(tm.S[3][t] == 3)[0])  # face opposite d
+    ids = tm.flip23(t, i, force=True)
+    assert ids is not None and len(ids) == 3
+    check_mesh(tm)
+    assert _volume(tm) == pytest.approx(vol)
+    t3 = ids[0]
+    ids2 = tm.flip_edge(t3, 3, 4, force=True)  # edge d-e has degree 3
+    assert ids2 is not None and len(ids2) == 2
+    check_mesh(tm)
+    assert sorted(map(sorted, tm.tetrahedra().tolist())) == sorted(map(sorted, tets))
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_flip23_not_admissible_when_segment_misses_the_face(exact):
+    pts = [[0, 0, 0], [6, 0, 0], [0, 6, 0], [1, 1, 4], [9, 9, -4]]
+    tets = [[0, 1, 2, 3], [0, 2, 1, 4]]
+    tm = _mesh(pts, tets, exact=exact, hull_volume=48.0)  # the pair's union is not convex
+    t = tm.live_ids()[0]
+    i = int(np.flatnonzero(tm.S[3][t] == 3)[0])
+    assert tm.flip23(t, i, force=True) is None
+    check_mesh(tm, hull_volume=48.0)
+
+
+def test_flip_is_applied_only_when_it_lowers_the_evaluated_sum():
+    pts = [[0, 0, 0], [6, 0, 0], [0, 6, 0], [1, 1, 4], [2, 2, -4], [1, 1, 0], [2, 1, 1]]
+    vals = np.array([0, 0, 0, 0, 0, 1.0, 0.3])
+    tets = delaunay_tetrahedra(np.array(pts, float))
+    tm = _mesh(pts, tets, values=vals)
+    for t in tm.live_ids():
+        for i in range(4):
+            tm2 = tm.copy()
+            before = tm2.criterion_sum()
+            ids = tm2.flip23(t, i)
+            if ids is not None:
+                check_mesh(tm2)
+                assert tm2.criterion_sum() < before
+
+
+def test_checker_detects_a_broken_link():
+    pts, tets = _octahedron()
+    tm = _mesh(pts, tets)
+    t = tm.live_ids()[0]
+    tm.S[4][t, 2] = -1  # break a neighbour link
+    with pytest.raises(MeshInvalid):
+        check_mesh(tm)
+
+
+def test_checker_detects_an_inverted_tet():
+    pts, tets = _octahedron()
+    tm = _mesh(pts, tets)
+    t = tm.live_ids()[0]
+    tm.S[3][t, [0, 1]] = tm.S[3][t, [1, 0]]
+    with pytest.raises(MeshInvalid):
+        check_mesh(tm)
+
+
+# ---------------------------------------------------------------- random sequences, checked after every step
+
+def _run_checked(points, values, exact, order, fixed_tets, criterion="rms", swap=True):
+    ijk = np.asarray(points, np.int64) if exact else None
+    tm = TetMesh(np.asarray(points, float), values, ijk, criterion=criterion)
+    tm.start(fixed_tets)
+    hull_vol = None
+    check_mesh(tm, hull_volume=hull_vol)
+    for p in order:
+        case, ids = tm.insert(p)
+        check_mesh(tm)
+        if swap:
+            before = tm.criterion_sum()
+            tm.swap(ids)
+            check_mesh(tm)
+            # the swap only applies flips that lower the sum it evaluates
+            assert tm.criterion_sum() <= before * (1 + 1e-12) + 1e-15
+    r, worst = tm.residuals()
+    return tm, r
+
+
+@pytest.mark.parametrize("seed", range(3))
+@pytest.mark.parametrize("criterion", ["rms", "max", "sse"])
+def test_random_order_on_a_grid_checked_after_every_operation(seed, criterion):
+    rng = np.random.default_rng(seed)
+    n = 3
+    idx = np.arange(n + 1)
+    ijk = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).reshape(-1, 3)
+    vals = rng.normal(size=len(ijk))
+    fixed = box_tetrahedra((n + 1,) * 3)
+    corners = np.unique(fixed)
+    order = rng.permutation(np.setdiff1d(np.arange(len(ijk)), corners))
+    tm, r = _run_checked(ijk, vals, True, order, fixed, criterion)
+    # every point selected: the interpolant reproduces the data
+    assert np.max(np.abs(r)) < 1e-12
+    assert sum(tm.cases.values()) == len(order)
+
+
+def _scattered_case(kind, seed):
+    rng = np.random.default_rng(seed)
+    if kind == "random":
+        pts = rng.random((30, 3))
+    elif kind == "cospherical":
+        v = rng.normal(size=(24, 3))
+        pts = v / np.linalg.norm(v, axis=1)[:, None]
+        pts = np.vstack([pts, 0.3 * rng.random((6, 3))])
+    elif kind == "coplanar":
+        # points on three parallel planes, many on hull faces and shared planes
+        xy = rng.random((10, 2))
+        pts = np.vstack([np.column_stack([xy, np.full(10, z)]) for z in (0.0, 0.5, 1.0)])
+    else:  # integer lattice subset: many degenerate (coplanar, collinear) configurations, float path
+        pts = rng.choice(np.stack(np.meshgrid(*[np.arange(4)] * 3, indexing="ij"), -1).reshape(-1, 3),
+                         size=35, replace=False).astype(float)
+    return pts
+
+
+@pytest.mark.parametrize("kind", ["random", "cospherical", "coplanar", "lattice"])
+@pytest.mark.parametrize("seed", range(2))
+def test_random_order_on_scattered_points_checked_after_every_operation(kind, seed):
+    pts = _scattered_case(kind, seed)
+    vals = np.sin(3 * pts[:, 0]) + pts[:, 1] * pts[:, 2]
+    _, hv = hull_triangles(pts)
+    fixed_tets = hv[delaunay_tetrahedra(pts[hv])]
+    order = np.random.default_rng(seed + 10).permutation(np.setdiff1d(np.arange(len(pts)), hv))
+    tm, r = _run_checked(pts, vals, False, order, fixed_tets)
+    assert np.max(np.abs(r)) < 1e-9
+
+
+def test_fixture_robustness_lattice_insertions():
+    """Named fixture: an insertion order on a lattice subset that once needed new hull faces."""
+    fx = json.loads((FIXTURES / "hull_face_insertion.json").read_text())
+    pts = np.array(fx["points"], float)
+    vals = np.array(fx["values"], float)
+    tm, r = _run_checked(pts, vals, fx["exact"], fx["order"], np.array(fx["start_tets"]))
+    assert np.max(np.abs(r)) < 1e-12
+
+
+def test_orientation_predicate_int_and_float_agree_on_grid_points():
+    rng = np.random.default_rng(3)
+    pts = rng.integers(0, 5, size=(40, 3))
+    tmi = TetMesh(pts.astype(float), np.zeros(40), pts)
+    tmf = TetMesh(pts.astype(float), np.zeros(40), None)
+    for _ in range(500):
+        a, b, c, d = rng.integers(0, 40, 4)
+        exact = int(np.sign(round(np.linalg.det((pts[[b, c, d]] - pts[a]).astype(float)))))
+        assert _orient(tmi.S, a, b, c, d) == exact
+        assert _orient(tmf.S, a, b, c, d) == exact

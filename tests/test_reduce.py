@@ -1,0 +1,194 @@
+"""The whole method through :func:`trivsel.reduce`: stopping, options, errors, determinism."""
+
+import json
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import trivsel
+from trivsel.check import check_mesh
+from trivsel.data import grid_from_array, sample_grid, scattered
+from trivsel.errors import face_residual_rms
+from trivsel.selection import count_for_fraction
+
+
+def test_fraction_counts_round_half_up_and_include_fixed_points():
+    assert count_for_fraction(0.5, 4913) == 2457
+    assert count_for_fraction(0.2, 4913) == 983
+    assert count_for_fraction(0.1, 4913) == 491
+    r = trivsel.reduce(2, n=6, fractions=[0.5, 0.2])
+    assert [s.n_selected for s in r.snapshots] == [count_for_fraction(0.2, 343), count_for_fraction(0.5, 343)]
+    assert [s.fraction for s in r.snapshots] == [0.2, 0.5]
+
+
+def test_linear_function_has_zero_error_at_every_snapshot():
+    lin = grid_from_array(np.fromfunction(lambda i, j, k: 0.3 * i - 0.2 * j + 0.1 * k + 1.0, (7, 7, 7)))
+    r = trivsel.reduce(lin, fractions=[0.1, 0.3, 0.6], check=check_mesh)
+    for s in r.snapshots:
+        assert s.errors["E_inf"] < 1e-12
+    assert r.stats["flips"] == {"2-3": 0, "3-2": 0, "4-4": 0}  # nothing to gain, nothing flipped
+
+
+def test_linear_function_scattered_zero_error():
+    rng = np.random.default_rng(0)
+    p = rng.random((600, 3))
+    d = scattered(p, 2 * p[:, 0] - p[:, 1] + 0.5 * p[:, 2])
+    r = trivsel.reduce(d, fractions=[0.2, 0.5], check=check_mesh)
+    for s in r.snapshots:
+        assert s.errors["E_inf"] < 1e-12
+
+
+@pytest.mark.parametrize("function", [1, 5])
+def test_full_selection_reproduces_the_data(function):
+    r = trivsel.reduce(function, n=4, fractions=[1.0], check=check_mesh)
+    s = r.snapshots[-1]
+    assert s.n_selected == 125
+    assert s.errors["E_inf"] < 1e-12
+
+
+def test_errors_decrease_with_more_points_and_interior_mask_counts():
+    r = trivsel.reduce(4, n=8, fractions=[0.1, 0.2, 0.5])
+    e = [s.errors["E_rms"] for s in r.snapshots]
+    assert e[0] >= e[1] >= e[2] > 0
+    d = sample_grid(4, 8)
+    assert d.interior_mask().sum() == 7**3
+    # the face-residual identity splits E_rms into its boundary and interior parts
+    s = r.snapshots[0]
+    mask = d.interior_mask()
+    face = np.sqrt(np.mean(s.residuals[~mask] ** 2))
+    assert face_residual_rms(s.errors["E_rms"], s.errors["E_rms_interior"], 729, 343) == pytest.approx(face)
+
+
+def test_two_runs_are_identical():
+    a = trivsel.reduce(3, n=6, fractions=[0.5, 0.2])
+    b = trivsel.reduce(3, n=6, fractions=[0.5, 0.2])
+    assert np.array_equal(a.selected, b.selected)
+    for sa, sb in zip(a.snapshots, b.snapshots):
+        assert np.array_equal(sa.tets, sb.tets)
+        assert sa.errors == sb.errors
+
+
+def test_selected_points_follow_descending_curvature():
+    r = trivsel.reduce(1, n=6, fractions=[0.3])
+    K = r.curvature[r.order]
+    step = 1e-9 * K.max()
+    assert np.all(np.diff(np.round(K / step)) <= 0)
+    snap = r.snapshots[0]
+    assert set(np.unique(snap.tets)) == set(snap.selected.tolist())
+
+
+def test_interior_candidates_never_select_boundary_points():
+    d = sample_grid(5, 6)
+    r = trivsel.reduce(d, fractions=[0.3], candidates="interior", check=check_mesh)
+    sel = r.snapshots[0].selected[8:]
+    assert d.interior_mask()[sel].all()
+    # with face points allowed, f5 (curvature peaks on the faces) selects some
+    r2 = trivsel.reduce(d, fractions=[0.3], candidates="all")
+    assert not d.interior_mask()[r2.snapshots[0].selected[8:]].all()
+
+
+@pytest.mark.parametrize("opts", [
+    {"criterion": "max"}, {"criterion": "sse"}, {"tie_order": "reverse"}, {"tie_order": "random", "seed": 3},
+    {"tie_order": "centre"}, {"final_pass": True}, {"first_improving": True}, {"boundary_diagonals": "mirrored"},
+    {"own_vertices": False},
+])
+def test_every_option_gives_a_valid_mesh(opts):
+    r = trivsel.reduce(4, n=5, fractions=[0.3, 0.15], check=check_mesh, **opts)
+    assert len(r.snapshots) == 2
+    for k, v in opts.items():
+        assert r.options[k] == v
+
+
+def test_final_pass_never_worsens_the_criterion_sum():
+    from trivsel.mesh import TetMesh
+    from trivsel.triangulation import box_tetrahedra
+
+    d = sample_grid(2, 6)
+    r = trivsel.reduce(d, fractions=[0.3])
+    tm = TetMesh(d.points, d.values, d.ijk)
+    tm.start(box_tetrahedra(d.shape))
+    order = r.order
+    ids = tm.cone(order[0])
+    tm.swap(ids)
+    tm.run(order, 1, r.snapshots[0].n_selected - 8)
+    assert sorted(map(sorted, tm.tetrahedra().tolist())) == sorted(map(sorted, r.snapshots[0].tets.tolist()))
+    before = tm.criterion_sum()
+    flips = tm.global_pass()
+    check_mesh(tm)
+    assert tm.criterion_sum() <= before
+    assert (flips > 0) == (tm.criterion_sum() < before)
+    b = trivsel.reduce(d, fractions=[0.3], final_pass=True)
+    assert np.array_equal(r.snapshots[0].selected, b.snapshots[0].selected)
+    assert sorted(map(sorted, tm.tetrahedra().tolist())) == sorted(map(sorted, b.snapshots[0].tets.tolist()))
+
+
+def test_tolerance_stop_rms_and_inf():
+    r = trivsel.reduce(4, n=8, tol_rms=0.05)
+    s = r.snapshots[-1]
+    assert s.errors["E_rms"] <= 0.05
+    assert s.n_selected < 729
+    r2 = trivsel.reduce(4, n=8, count=s.n_selected - 1)
+    assert r2.snapshots[-1].errors["E_rms"] > 0.05  # it stopped at the first count that met the tolerance
+    r3 = trivsel.reduce(5, n=6, tol_inf=0.05)
+    assert r3.snapshots[-1].errors["E_inf"] <= 0.05
+
+
+def test_count_stop():
+    r = trivsel.reduce(1, n=6, count=40)
+    assert r.snapshots[-1].n_selected == 40
+    assert len(r.selected) == 40
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"fractions": [0.0]}, "outside (0, 1]"),
+    ({"fractions": [1.2]}, "outside (0, 1]"),
+    ({"fractions": [float("nan")]}, "outside (0, 1]"),
+    ({"fractions": ["abc"]}, "not a number"),
+    ({"fractions": [0.01]}, "fewer than the 8 fixed points"),
+    ({"count": 10**6}, "count must be an integer"),
+    ({"tol_rms": -1.0}, "tol_rms"),
+    ({"fractions": [0.5], "criterion": "l3"}, "unknown criterion"),
+    ({}, "give fractions"),
+])
+def test_bad_arguments_raise_input_error(kwargs, message):
+    with pytest.raises(trivsel.InputError, match=message.replace("(", r"\(").replace(")", r"\)")):
+        trivsel.reduce(1, n=4, **kwargs)
+
+
+@pytest.mark.parametrize("points, values, message", [
+    (np.zeros((3, 3)), np.zeros(3), "too few points"),
+    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [1, 1, 0], [2, 1, 0.0]]), np.zeros(5), "coplanar"),
+    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0, 0, 1.0], [1, 1, 1]]), np.zeros(6), "duplicate point"),
+    (np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [np.nan, 0, 1.0]]), np.zeros(5), "non-finite coordinate"),
+    (np.eye(5, 3), np.array([0, 1, np.nan, 0, 0]), "non-finite value"),
+])
+def test_bad_scattered_input(points, values, message):
+    with pytest.raises(trivsel.InputError, match=message):
+        scattered(points, values)
+
+
+def test_unknown_function():
+    with pytest.raises(trivsel.InputError, match="unknown function 'sombrero'"):
+        sample_grid("sombrero", 4)
+    assert sample_grid("exponential", 2).name == "4"
+
+
+def test_jit_and_pure_python_give_identical_results(tmp_path):
+    """NUMBA_DISABLE_JIT=1 runs the same kernel as plain Python (for debugging): same result."""
+    code = ("import json, trivsel; r = trivsel.reduce(4, n=3, fractions=[0.5, 0.3]);"
+            "print(json.dumps({'sel': r.selected.tolist(), 'tets': [sorted(map(sorted, s.tets.tolist())) "
+            "for s in r.snapshots], 'err': [s.errors for s in r.snapshots]}))")
+    outs = []
+    for disable in ("0", "1"):
+        env = dict(os.environ, NUMBA_DISABLE_JIT=disable)
+        p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=600)
+        assert p.returncode == 0, p.stderr
+        outs.append(json.loads(p.stdout))
+    assert outs[0]["sel"] == outs[1]["sel"]
+    assert outs[0]["tets"] == outs[1]["tets"]
+    for a, b in zip(outs[0]["err"], outs[1]["err"]):
+        for k in a:
+            assert a[k] == pytest.approx(b[k], rel=1e-12, abs=1e-15)
