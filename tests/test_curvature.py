@@ -11,17 +11,32 @@ from trivsel.curvature import (
     analytic_absolute_curvature,
     analytic_derivatives,
     fit_quadratic,
+    local_frame_curvature,
     principal_curvatures,
+    tet_normals,
+    vertex_normals,
 )
 from trivsel.data import FUNCTIONS, sample_grid
-from trivsel.triangulation import delaunay_tetrahedra, edge_neighbours, kuhn_tetrahedra
+from trivsel.errors_input import InputError
+from trivsel.triangulation import (
+    delaunay_tetrahedra,
+    edge_neighbours,
+    hull_boundary_mask,
+    kuhn_tetrahedra,
+)
+
+
+@lru_cache(maxsize=None)
+def _grid_tets(n):
+    """Kuhn split of the (n+1)^3 grid (cached)."""
+    return kuhn_tetrahedra((n + 1,) * 3)
 
 
 @lru_cache(maxsize=None)
 def _grid_graph(n):
     """Edge-neighbour graph of the Kuhn split of the (n+1)^3 grid (cached: building it
     is the slowest part of these tests)."""
-    return edge_neighbours(kuhn_tetrahedra((n + 1,) * 3), (n + 1) ** 3)
+    return edge_neighbours(_grid_tets(n), (n + 1) ** 3)
 
 
 def _grid_fit(function, n):
@@ -263,3 +278,178 @@ def test_chunking_does_not_change_results():
     small = fit_quadratic(data.points, data.values, ip, ix, chunk_points=37, chunk_rows=500)
     for a, b in zip(ref, small):
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-13)
+
+
+# ---------------------------------------------------------------------------
+# local-frame estimator (Hamann 1994b)
+# ---------------------------------------------------------------------------
+
+def _grid_K_local(function, n, **options):
+    data = sample_grid(function, n)
+    return data, local_frame_curvature(data.points, data.values, tets=_grid_tets(n),
+                                       neighbours=_grid_graph(n), **options)
+
+
+def _ball_grid(n, half, radius):
+    """(n+1)^3 grid on [-half, half]^3 with the hypersphere-graph values, interior mask."""
+    i = np.arange(n + 1)
+    ijk = np.stack(np.meshgrid(i, i, i, indexing="ij"), axis=-1).reshape(-1, 3)
+    p = (2.0 * ijk - n) / n * half
+    f = np.sqrt(radius**2 - np.sum(p * p, axis=1))
+    return p, f, np.all((ijk > 0) & (ijk < n), axis=1)
+
+
+def test_tet_normals_are_orthogonal_and_scaled_by_lifted_volume():
+    rng = np.random.default_rng(21)
+    p = rng.random((60, 3))
+    tets = delaunay_tetrahedra(p)
+    f = np.sin(3 * p[:, 0]) + p[:, 1] * p[:, 2]
+    nt = tet_normals(p, f, tets)
+    lifted = np.c_[p, f]
+    edges = lifted[tets[:, 1:]] - lifted[tets[:, :1]]
+    np.testing.assert_allclose(np.einsum("mij,mj->mi", edges, nt), 0, atol=1e-12)
+    assert (nt[:, 3] > 0).all()
+    # n_T = 6 V (-grad L, 1): last component is 6 V, the rest -6 V grad L
+    six_v = np.abs(np.linalg.det(p[tets[:, 1:]] - p[tets[:, :1]]))
+    np.testing.assert_allclose(nt[:, 3], six_v, rtol=1e-12)
+    df = (f[tets[:, 1:]] - f[tets[:, :1]])[..., None]
+    grad = np.linalg.solve(p[tets[:, 1:]] - p[tets[:, :1]], df)[..., 0]
+    np.testing.assert_allclose(nt[:, :3], -six_v[:, None] * grad, rtol=1e-9, atol=1e-12)
+
+
+@pytest.mark.parametrize("function", [1, 2])
+def test_volume_weighted_normal_exact_for_quadratics_inside_grid(function):
+    """Point-symmetric Kuhn stars: the quadratic parts of opposite tets cancel in the
+    volume-weighted mean, so the normal is exact (uniform weighting: 3.0e-3 off, n=8)."""
+    data = sample_grid(function, 8)
+    g, _ = analytic_derivatives(function, data.points)
+    exact = np.c_[-g, np.ones(len(g))]
+    exact /= np.linalg.norm(exact, axis=1, keepdims=True)
+    inner = data.interior_mask()
+    vol = vertex_normals(data.points, data.values, _grid_tets(8))
+    uni = vertex_normals(data.points, data.values, _grid_tets(8), weighting="uniform")
+    np.testing.assert_allclose(np.linalg.norm(vol, axis=1), 1, rtol=1e-14)
+    np.testing.assert_allclose(vol[inner], exact[inner], atol=1e-13)
+    assert np.abs(uni - exact)[inner].max() > 1e-3
+    assert (vol[:, 3] > 0).all() and (uni[:, 3] > 0).all()
+
+
+@pytest.mark.parametrize("radius", [1.0, 2.0])
+def test_local_frame_hypersphere_grid(radius):
+    """Graph of sqrt(R^2 - |x|^2) on the grid over [-0.4, 0.4]^3: kappa_i = -1/R, K = 3/R.
+    Observed max relative error of K (local frame / direct):
+    R=1 (slopes up to 0.96): interior n=8 3.3e-3 / 1.7e-2, n=16 9.3e-4 / 8.6e-3;
+                             all points n=8 1.6e-2 / 1.9e-1, n=16 4.4e-3 / 1.3e-1;
+    R=2 (slopes up to 0.37): interior n=8 6.7e-4 / 6.2e-4, n=16 1.7e-4 / 1.6e-4;
+                             all points n=8 3.7e-3 / 4.3e-2, n=16 9.3e-4 / 2.5e-2.
+    Not exact (the height function of a sphere has a quartic term), but second
+    order everywhere, and far better than the direct fit on the boundary and
+    where the graph is steep (in the flat interior the two are on a par)."""
+    errs = []
+    for n in (8, 16):
+        p, f, inner = _ball_grid(n, 0.4, radius)
+        tets = _grid_tets(n)
+        nb = _grid_graph(n)
+        K, info = local_frame_curvature(p, f, tets=tets, neighbours=nb, return_info=True)
+        Kd = absolute_curvature(p, f, neighbours=nb)
+        el = np.abs(K - 3 / radius) * radius / 3
+        ed = np.abs(Kd - 3 / radius) * radius / 3
+        assert (info["kappa"][inner] < 0).all()       # upward normal points inward
+        assert el.max() < 0.25 * ed.max()             # all points, boundary included
+        if radius == 1.0:
+            assert el[inner].max() < 0.25 * ed[inner].max()
+        errs.append((el[inner].max(), el.max()))
+    assert errs[1][0] < (5e-3 if radius == 1.0 else 1e-3) / 4, errs
+    assert errs[0][0] / errs[1][0] > 3 and errs[0][1] / errs[1][1] > 3, errs
+
+
+def test_local_frame_hypersphere_scattered():
+    """748 random points in the ball of radius 0.7 R (R = 1), Delaunay triangulation.
+    Observed relative error of K, local frame vs direct: median over the 629 non-hull
+    points 8.3e-3 vs 1.5e-2 (max 9.1e-2 vs 1.3e-1); max over the 276 points with
+    |x| < 0.5: 1.7e-2 vs 8.9e-2."""
+    rng = np.random.default_rng(7)
+    x = rng.uniform(-0.7, 0.7, (1400, 3))
+    x = x[np.linalg.norm(x, axis=1) <= 0.7]
+    f = np.sqrt(1 - np.sum(x * x, axis=1))
+    tets = delaunay_tetrahedra(x)
+    K = absolute_curvature(x, f, tets=tets, estimator="local-frame")
+    Kd = absolute_curvature(x, f, tets=tets)
+    el, ed = np.abs(K - 3) / 3, np.abs(Kd - 3) / 3
+    inner = ~hull_boundary_mask(x)
+    deep = np.linalg.norm(x, axis=1) < 0.5
+    assert np.median(el[inner]) < 0.012 and np.median(el[inner]) < 0.7 * np.median(ed[inner])
+    assert el[deep].max() < 0.03 and el[deep].max() < 0.3 * ed[deep].max()
+
+
+@pytest.mark.parametrize("function", [1, 2, 4, 5])
+def test_estimators_agree_under_refinement(function):
+    """Max |K_local - K_direct| over interior points (f1, f2; the direct fit is exact
+    there) or points in [-0.5, 0.5]^3 (f4, f5), observed for n = 8, 16, 32:
+    f1 5.7e-3, 1.4e-3, 3.5e-4 (ratios 4.1, 4.0);  f2 1.1e-2, 3.2e-3, 8.4e-4 (3.4, 3.8);
+    f4 3.3e-2, 9.3e-3, 2.4e-3 (3.5, 3.8);         f5 4.1e-3, 1.4e-3, 3.8e-4 (2.9, 3.7).
+    (On the grid boundary the local frame is only first order: f1 0.27, 0.13, 0.06.)"""
+    diffs = []
+    for n in (8, 16, 32):
+        data, Kd = _grid_K(function, n)
+        _, Kl = _grid_K_local(function, n)
+        if function in (1, 2):
+            region = data.interior_mask()
+        else:
+            region = np.all(np.abs(data.points) <= 0.5 + 1e-12, axis=1)
+        diffs.append(np.abs(Kl - Kd)[region].max())
+    assert diffs[0] / diffs[1] > 2.5 and diffs[1] / diffs[2] > 3.2, diffs
+    assert diffs[2] < {1: 5e-4, 2: 1.2e-3, 4: 3.5e-3, 5: 6e-4}[function], diffs
+
+
+def test_local_frame_linear_is_flat(scattered_cloud):
+    p, tets, nb = scattered_cloud
+    f = 0.3 + 1.2 * p[:, 0] - 0.7 * p[:, 1] + 2.0 * p[:, 2]
+    K = local_frame_curvature(p, f, tets=tets, neighbours=nb)
+    assert np.abs(K).max() <= 1e-9
+    data = sample_grid(1, 8)
+    g = data.points @ np.array([0.5, -2.0, 1.0]) - 3.0
+    for weighting in ("volume", "uniform"):
+        K = local_frame_curvature(data.points, g, tets=_grid_tets(8), weighting=weighting)
+        assert np.abs(K).max() <= 1e-9
+
+
+def test_local_frame_api(scattered_cloud):
+    p, tets, nb = scattered_cloud
+    x, y, z = p.T
+    f = np.exp(-((x - 0.5) ** 2 + y * y)) + 0.3 * z * z
+    K, info = local_frame_curvature(p, f, tets=tets, neighbours=nb, return_info=True)
+    np.testing.assert_array_equal(absolute_curvature(p, f, tets=tets, estimator="local-frame"), K)
+    # default: Delaunay built internally (the same triangulation here)
+    np.testing.assert_allclose(local_frame_curvature(p, f), K, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(K, np.abs(info["kappa"]).sum(axis=1), rtol=1e-14)
+    assert info["normal"].shape == (len(p), 4) and not info["min_norm"].any()
+    # same neighbourhoods as the direct fit
+    _, _, _, dinfo = fit_quadratic(p, f, *nb, return_info=True)
+    np.testing.assert_array_equal(info["ring"], dinfo["ring"])
+    # chunking does not change results
+    small = local_frame_curvature(p, f, tets=tets, neighbours=nb, chunk_points=23, chunk_rows=400)
+    np.testing.assert_allclose(small, K, rtol=1e-12, atol=1e-13)
+    with pytest.raises(InputError):
+        local_frame_curvature(p, f, neighbours=nb)          # normals need the tets
+    with pytest.raises(ValueError):
+        absolute_curvature(p, f, tets=tets, estimator="paper")
+    with pytest.raises(ValueError):
+        local_frame_curvature(p, f, tets=tets, weighting="area")
+
+
+def test_local_frame_grid_rings_and_kuhn_symmetry():
+    """Grid: boundary points widen to the 2-ring exactly as in the direct fit.  K is
+    invariant under the symmetries of f1 that the Kuhn split shares (axis
+    permutations and the central reflection i -> n - i of all axes at once)."""
+    n = 8
+    data = sample_grid(1, n)
+    K, info = local_frame_curvature(data.points, data.values, tets=_grid_tets(n),
+                                    neighbours=_grid_graph(n), return_info=True)
+    np.testing.assert_array_equal(info["ring"] > 1, ~data.interior_mask())
+    index = {tuple(t): i for i, t in enumerate(data.ijk.tolist())}
+    for ijk in [(1, 2, 3), (0, 1, 5), (0, 0, 3), (2, 2, 7), (0, 0, 0)]:
+        group = {tuple(perm) for perm in permutations(ijk)}
+        group |= {tuple(n - c for c in t) for t in group}
+        vals = K[[index[t] for t in group]]
+        assert (vals.max() - vals.min()) <= 1e-12 * vals.max()

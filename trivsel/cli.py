@@ -24,9 +24,17 @@ def _add_option_args(p):
     from .reduction import DEFAULTS, OPTION_DOCS
 
     g = p.add_argument_group("method options (the paper's open choices; defaults reproduce Table 1)")
-    g.add_argument("--method", default=DEFAULTS["method"], choices=["paper"], help="selection method")
-    g.add_argument("--criterion", default=DEFAULTS["criterion"], choices=["rms", "max", "sse"],
-                   help=OPTION_DOCS["criterion"])
+    g.add_argument("--method", default=DEFAULTS["method"], choices=["paper", "greedy"],
+                   help="'paper': curvature ranking (sections 2-4); 'greedy': insert the worst-approximated "
+                        "point next (error-driven, beyond the paper)")
+    g.add_argument("--greedy-key", default="max", choices=["max", "sse"],
+                   help="greedy: next point = largest residual ('max', aims at E_inf) or worst point of the tet "
+                        "with the largest squared-error sum ('sse', aims at E_RMS)")
+    g.add_argument("--values", nargs="+", default=["data"], choices=["data", "fit"],
+                   help="vertex values: the selected points' own ('data', the paper) and/or least-squares "
+                        "values over all points ('fit'); one errors.csv row per snapshot and mode")
+    g.add_argument("--criterion", default=None, choices=["rms", "max", "sse"],
+                   help=OPTION_DOCS["criterion"] + " (default: rms for paper, sse for greedy)")
     g.add_argument("--candidates", default=DEFAULTS["candidates"], choices=["all", "interior"],
                    help=OPTION_DOCS["candidates"])
     g.add_argument("--tie-order", default=DEFAULTS["tie_order"], choices=["index", "reverse", "random", "centre"],
@@ -37,7 +45,10 @@ def _add_option_args(p):
                    help="exclude a tet's own vertices from its error (eqs. 14-15)")
     g.add_argument("--final-pass", action="store_true", help=OPTION_DOCS["final_pass"])
     g.add_argument("--first-improving", action="store_true", help=OPTION_DOCS["first_improving"])
-    g.add_argument("--curvature", default=DEFAULTS["curvature"], choices=["direct"], help=OPTION_DOCS["curvature"])
+    g.add_argument("--curvature", default=DEFAULTS["curvature"], choices=["direct", "local-frame"],
+                   help=OPTION_DOCS["curvature"])
+    g.add_argument("--ranking", default=DEFAULTS["ranking"], choices=["curvature", "ascending", "random", "analytic"],
+                   help=OPTION_DOCS["ranking"])
     g.add_argument("--rel-tol", type=float, default=DEFAULTS["rel_tol"], help=OPTION_DOCS["rel_tol"])
     g.add_argument("--seed", type=int, default=DEFAULTS["seed"], help="seed for the random tie order")
 
@@ -99,10 +110,12 @@ def _cmd_reduce(a):
         from .check import check_mesh
 
         check = check_mesh
+    criterion = a.criterion or ("sse" if a.method == "greedy" else "rms")
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
-                    method=a.method, criterion=a.criterion, candidates=a.candidates, tie_order=a.tie_order,
+                    method=a.method, criterion=criterion, candidates=a.candidates, tie_order=a.tie_order,
                     own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
-                    boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, rel_tol=a.rel_tol,
+                    boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
+                    rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
                     seed=a.seed, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()

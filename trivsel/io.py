@@ -116,8 +116,8 @@ def load(path, array: str | None = None) -> PointData:
 def snapshot_to_pyvista(result, snapshot):
     """The snapshot's mesh as a pyvista UnstructuredGrid over the selected points.
 
-    Point data: ``value`` (the selected points' own values), ``original_index`` and
-    ``curvature`` (K of eq. 10).
+    Point data: ``value`` (the selected points' own values), ``original_index``,
+    ``curvature`` (K of eq. 10) and, with ``values="fit"``, ``fitted_value``.
     """
     import pyvista as pv
 
@@ -128,6 +128,10 @@ def snapshot_to_pyvista(result, snapshot):
     types = np.full(len(snapshot.tets), pv.CellType.TETRA, np.uint8)
     grid = pv.UnstructuredGrid(cells, types, result.data.points[sel])
     grid.point_data["value"] = result.data.values[sel]
+    if snapshot.fit is not None:
+        fitted = np.empty(len(sel))
+        fitted[np.searchsorted(sel, snapshot.fit["vertices"])] = snapshot.fit["values"]
+        grid.point_data["fitted_value"] = fitted
     grid.point_data["original_index"] = sel
     grid.point_data["curvature"] = result.curvature[sel]
     grid.field_data["fraction"] = np.array([snapshot.fraction])

@@ -32,14 +32,17 @@ from .predicates import orient3d_float, orient3d_float_sign, orient3d_int
 # indices into the state tuple
 _P, _IC, _F, _TETS, _NBR, _ALIVE, _FREE, _BSTART, _BLEN, _POOL = range(10)
 _TSSE, _TMAX, _TCNT, _MARK, _RESID, _OWNER, _ISVERT, _WBUF, _CTR, _FOPT, _ACC, _OMARK = range(10, 22)
+# greedy selection: each tet's worst candidate point and a binary max-heap over tets
+_TBEST, _TBESTR, _TVER, _HKEY, _HTET, _HVER, _CAND = range(22, 29)
 
 # counters (int64 array)
 C_HW, C_NFREE, C_POOLTOP, C_NALIVE, C_STAMP, C_ERROR = 0, 1, 2, 3, 4, 5
 C_FLIP23, C_FLIP32, C_FLIP44, C_NVERT, C_ABOVE, C_OSTAMP = 6, 7, 8, 9, 10, 11
 C_CASE1, C_CASE2, C_CASE3, C_ROUNDCAP = 12, 13, 14, 15
+C_HEAPN = 16
 
 # float options
-O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS = range(8)
+O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS, O_GREEDY, O_GKEY = range(10)
 
 CRITERIA = {"rms": 0, "max": 1, "sse": 2}
 
@@ -147,6 +150,9 @@ def _alloc(S):
         ctr[C_HW] += 1
     S[_ALIVE][t] = 1
     S[_BLEN][t] = 0
+    S[_TVER][t] += 1
+    S[_TBEST][t] = -1
+    S[_TBESTR][t] = 0.0
     ctr[C_NALIVE] += 1
     return t
 
@@ -344,6 +350,8 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
     tolinf = fopt[O_TOLINF]
     mark = S[_MARK]
     st = ctr[C_STAMP]  # points still carrying this stamp are not yet covered
+    cand = S[_CAND]
+    isvert = S[_ISVERT]
     for k in range(nnew):
         t = ids[k]
         q0 = tets[t, 0]
@@ -356,6 +364,8 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
         sse = 0.0
         mx = 0.0
         cnt = 0
+        best = -1
+        bestr = 0.0
         for j in range(m):
             p = buf[j]
             inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
@@ -364,6 +374,9 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
             pool[top + L] = p
             L += 1
             r = F[p] - val
+            if cand[p] and not isvert[p] and abs(r) > bestr:
+                best = p
+                bestr = abs(r)
             if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
                 sse += r * r
                 ar = abs(r)
@@ -386,6 +399,7 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
         S[_TSSE][t] = sse
         S[_TMAX][t] = mx
         S[_TCNT][t] = cnt
+        _set_best(S, t, best, bestr)
     for j in range(m):
         if mark[buf[j]] == st:
             ctr[C_ERROR] = ERR_UNCOVERED
@@ -908,6 +922,8 @@ def fill_buckets(S, ids):
         sse = 0.0
         mx = 0.0
         cnt = 0
+        best = -1
+        bestr = 0.0
         for p in range(N):
             inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
             if not inside:
@@ -918,6 +934,9 @@ def fill_buckets(S, ids):
             pool[top + L] = p
             L += 1
             r = F[p] - val
+            if S[_CAND][p] and not S[_ISVERT][p] and abs(r) > bestr:
+                best = p
+                bestr = abs(r)
             if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
                 sse += r * r
                 mx = max(mx, abs(r))
@@ -931,6 +950,7 @@ def fill_buckets(S, ids):
         S[_TSSE][t] = sse
         S[_TMAX][t] = mx
         S[_TCNT][t] = cnt
+        _set_best(S, t, best, bestr)
     for p in range(N):
         if not covered[p]:
             ctr[C_ERROR] = ERR_UNCOVERED
@@ -975,11 +995,172 @@ def residuals(S, out):
     return worst
 
 
+
+# ----------------------------------------------------------------------------- greedy selection
+
+@njit(cache=True)
+def _heap_push(S, key, t, ver):
+    """Push (key, tet, version) onto the array-backed binary max-heap."""
+    hk = S[_HKEY]
+    ht = S[_HTET]
+    hv = S[_HVER]
+    ctr = S[_CTR]
+    if ctr[C_HEAPN] >= hk.shape[0]:
+        return
+    i = ctr[C_HEAPN]
+    ctr[C_HEAPN] += 1
+    while i > 0:
+        parent = (i - 1) >> 1
+        if hk[parent] >= key:
+            break
+        hk[i] = hk[parent]
+        ht[i] = ht[parent]
+        hv[i] = hv[parent]
+        i = parent
+    hk[i] = key
+    ht[i] = t
+    hv[i] = ver
+
+
+@njit(cache=True)
+def _heap_pop(S):
+    """Remove and return the top (key, tet, version); tet -1 when empty."""
+    hk = S[_HKEY]
+    ht = S[_HTET]
+    hv = S[_HVER]
+    ctr = S[_CTR]
+    n = ctr[C_HEAPN]
+    if n == 0:
+        return 0.0, -1, 0
+    key, t, ver = hk[0], ht[0], hv[0]
+    n -= 1
+    ctr[C_HEAPN] = n
+    lk, lt, lv = hk[n], ht[n], hv[n]
+    i = 0
+    while True:
+        c = 2 * i + 1
+        if c >= n:
+            break
+        if c + 1 < n and hk[c + 1] > hk[c]:
+            c += 1
+        if hk[c] <= lk:
+            break
+        hk[i] = hk[c]
+        ht[i] = ht[c]
+        hv[i] = hv[c]
+        i = c
+    hk[i] = lk
+    ht[i] = lt
+    hv[i] = lv
+    return key, t, ver
+
+
+@njit(cache=True)
+def _heap_rebuild(S):
+    """Drop stale entries: refill the heap from the live tets."""
+    S[_CTR][C_HEAPN] = 0
+    alive = S[_ALIVE]
+    hk = S[_HKEY]
+    for t in range(S[_CTR][C_HW]):
+        if alive[t] and S[_TBEST][t] >= 0 and S[_CTR][C_HEAPN] < hk.shape[0]:
+            _heap_push(S, _greedy_key(S, t), t, S[_TVER][t])
+
+
+@njit(cache=True)
+def _set_best(S, t, best, bestr):
+    S[_TBEST][t] = best
+    S[_TBESTR][t] = bestr
+    if S[_FOPT][O_GREEDY] > 0.0 and best >= 0:
+        if S[_CTR][C_HEAPN] >= S[_HKEY].shape[0]:
+            _heap_rebuild(S)  # full of stale entries: refill from the live tets (t included)
+        else:
+            _heap_push(S, _greedy_key(S, t), t, S[_TVER][t])
+
+
+@njit(cache=True)
+def _greedy_key(S, t):
+    """Heap key of tet t: its worst residual (``greedy_key="max"``) or its squared-error sum ("sse")."""
+    if S[_FOPT][O_GKEY] > 0.0:
+        return S[_TSSE][t]
+    return S[_TBESTR][t]
+
+
+@njit(cache=True)
+def greedy_next(S):
+    """The candidate with the largest |f - L| over all tets (Garland & Heckbert 1995, in 3-D).
+
+    Pops stale heap entries (dead or rebuilt tets) until the top is current.
+    Returns -1 when no candidate has a nonzero residual.
+    """
+    alive = S[_ALIVE]
+    tver = S[_TVER]
+    while True:
+        key, t, ver = _heap_pop(S)
+        if t < 0:
+            return -1
+        if alive[t] and tver[t] == ver and S[_TBEST][t] >= 0:
+            return S[_TBEST][t]
+
+
+@njit(cache=True)
+def run_greedy(S, stop_nvert, tol_rms, n_total, log):
+    """Insert the worst-approximated candidate, swap, repeat, until ``stop_nvert`` vertices.
+
+    Each tet's candidate (its contained non-vertex candidate point with the largest
+    residual) sits in the heap; insertion and flips replace tets, and
+    :func:`_replace` pushes the new ones, so only touched tets are refreshed.
+    Inserted points are appended to ``log``; returns how many were inserted.
+    """
+    ctr = S[_CTR]
+    tolinf = S[_FOPT][O_TOLINF]
+    k = 0
+    while ctr[C_NVERT] < stop_nvert:
+        if tol_rms >= 0.0 and np.sqrt(max(S[_ACC][0], 0.0) / n_total) <= tol_rms:
+            break
+        if tolinf >= 0.0 and ctr[C_ABOVE] == 0:
+            break
+        p = greedy_next(S)
+        if p < 0:
+            break
+        case, ids = insert_point(S, p)
+        if ctr[C_ERROR] != 0:
+            break
+        log[k] = p
+        k += 1
+        swap(S, ids, ids.shape[0], True)
+        if ctr[C_ERROR] != 0:
+            break
+    return k
+
+
+@njit(cache=True)
+def point_weights(S, verts, weights):
+    """For every original point: the 4 vertices of a tet containing it and its barycentric weights."""
+    tets = S[_TETS]
+    owner = S[_OWNER]
+    for p in range(S[_F].shape[0]):
+        t = owner[p]
+        q0, q1, q2, q3 = tets[t, 0], tets[t, 1], tets[t, 2], tets[t, 3]
+        verts[p, 0] = q0
+        verts[p, 1] = q1
+        verts[p, 2] = q2
+        verts[p, 3] = q3
+        w0 = max(_volume(S, p, q1, q2, q3), 0.0)
+        w1 = max(_volume(S, q0, p, q2, q3), 0.0)
+        w2 = max(_volume(S, q0, q1, p, q3), 0.0)
+        w3 = max(_volume(S, q0, q1, q2, p), 0.0)
+        tot = w0 + w1 + w2 + w3
+        weights[p, 0] = w0 / tot
+        weights[p, 1] = w1 / tot
+        weights[p, 2] = w2 / tot
+        weights[p, 3] = w3 / tot
+
+
 # ----------------------------------------------------------------------------- Python side
 
 def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
                abs_tol=None, tol_inf=None, first_improving=False, max_rounds=100000,
-               tet_capacity=None, pool_capacity=None):
+               tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None):
     """Allocate the flat arrays of an empty mesh over the given original points."""
     P = np.ascontiguousarray(points, dtype=np.float64)
     F = np.ascontiguousarray(values, dtype=np.float64)
@@ -996,13 +1177,22 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
         raise ValueError(f"unknown swap criterion {criterion!r}: choose one of {sorted(CRITERIA)}")
     fopt = np.array([1.0 if ijk is not None else 0.0, CRITERIA[criterion], 1.0 if own_vertices else 0.0,
                      rel_tol, abs_tol, -1.0 if tol_inf is None else float(tol_inf),
-                     1.0 if first_improving else 0.0, float(max_rounds)])
+                     1.0 if first_improving else 0.0, float(max_rounds), 1.0 if greedy else 0.0,
+                     1.0 if greedy_key == "sse" else 0.0])
+    if greedy_key not in ("max", "sse"):
+        raise ValueError(f"unknown greedy key {greedy_key!r}: choose 'max' or 'sse'")
+    cand = np.ones(N, np.uint8)
+    if candidates is not None:
+        cand[:] = 0
+        cand[np.asarray(candidates, np.int64)] = 1
     S = (P, IC, F,
          np.full((cap, 4), -1, np.int32), np.full((cap, 4), -1, np.int32), np.zeros(cap, np.uint8),
          np.zeros(cap, np.int32), np.zeros(cap, np.int64), np.zeros(cap, np.int32),
          np.zeros(pcap, np.int32), np.zeros(cap), np.zeros(cap), np.zeros(cap, np.int32),
          np.zeros(N, np.int64), np.zeros(N), np.full(N, -1, np.int32), np.zeros(N, np.uint8),
-         np.zeros(N, np.int32), np.zeros(16, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64))
+         np.zeros(N, np.int32), np.zeros(24, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64),
+         np.full(cap, -1, np.int32), np.zeros(cap), np.zeros(cap, np.int64),
+         np.zeros(2 * cap), np.zeros(2 * cap, np.int64), np.zeros(2 * cap, np.int64), cand)
     return S
 
 
@@ -1154,6 +1344,26 @@ class TetMesh:
                            float(self.S[_F].shape[0]))
         self._raise_on_error()
         return int(k)
+
+    def greedy_next(self):
+        """The next greedy candidate (largest residual), without inserting it; -1 if none."""
+        p = greedy_next(self.S)
+        _heap_rebuild(self.S)  # put the popped entry back
+        return int(p)
+
+    def run_greedy(self, stop_nvert, tol_rms=-1.0):
+        log = np.empty(max(int(stop_nvert) - int(self.S[_CTR][C_NVERT]), 0) + 1, np.int64)
+        k = run_greedy(self.S, int(stop_nvert), float(tol_rms), float(self.S[_F].shape[0]), log)
+        self._raise_on_error()
+        return log[:k].copy()
+
+    def point_weights(self):
+        """(N, 4) vertices and barycentric weights of a tet containing each original point."""
+        N = self.S[_F].shape[0]
+        verts = np.empty((N, 4), np.int64)
+        w = np.empty((N, 4))
+        point_weights(self.S, verts, w)
+        return verts, w
 
     def residuals(self):
         """Residuals f - L at all original points, and the continuity defect."""

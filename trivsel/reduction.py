@@ -36,6 +36,7 @@ DEFAULTS = {
     "first_improving": False,
     "boundary_diagonals": "kuhn",
     "curvature": "direct",
+    "ranking": "curvature",
     "rel_tol": 1e-9,
     "quantum": 1e-9,
     "seed": 0,
@@ -50,7 +51,10 @@ OPTION_DOCS = {
     "final_pass": "after reaching each snapshot count, swap over all tets (end of section 4); applied to a copy",
     "first_improving": "apply the first improving flip in O instead of the best one",
     "boundary_diagonals": "diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored'",
-    "curvature": "curvature estimator: 'direct' least-squares quadratic in (x, y, z)",
+    "curvature": "curvature estimator: 'direct' least-squares quadratic in (x, y, z), or 'local-frame' "
+                 "(Hamann 1994b: quadratic height function over the tangent space of an estimated 4-D normal)",
+    "ranking": "insertion order: 'curvature' (descending K, the paper), or the diagnostic orders 'ascending' "
+               "(K ascending), 'random' (seeded) and 'analytic' (descending exact K of a Table-1 function)",
     "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
     "quantum": "relative step to which K is rounded before sorting (rounding noise stays a tie)",
 }
@@ -73,6 +77,7 @@ class Snapshot:
     errors: dict
     seconds: float
     flips: dict = field(default_factory=dict)
+    fit: dict | None = None  # values="fit": {"values": (m,) at sorted vertices, "residuals", "errors"}
 
 
 @dataclass
@@ -118,17 +123,19 @@ class ReductionResult:
         import pandas as pd
 
         rows = []
-        for s in self.snapshots:
-            rows.append({
-                "function": self.data.name,
-                "n": self.data.meta.get("n", (self.data.shape[0] - 1) if self.data.shape else ""),
-                "method": self.options["method"],
-                "values": self.options.get("values", "data"),
-                "fraction": s.fraction,
-                "n_selected": s.n_selected,
-                **{k: s.errors[k] for k in ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")},
-                "seconds": round(s.seconds, 4),
-            })
+        for mode in self.options.get("values", ["data"]):
+            for s in self.snapshots:
+                err = s.errors if mode == "data" else s.fit["errors"]
+                rows.append({
+                    "function": self.data.name,
+                    "n": self.data.meta.get("n", (self.data.shape[0] - 1) if self.data.shape else ""),
+                    "method": self.options["method"],
+                    "values": mode,
+                    "fraction": s.fraction,
+                    "n_selected": s.n_selected,
+                    **{k: err[k] for k in ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")},
+                    "seconds": round(s.seconds, 4),
+                })
         return pd.DataFrame(rows)
 
 
@@ -138,9 +145,9 @@ def _check_choice(name, value, choices):
 
 
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, method="paper",
-           criterion="rms", candidates="all", tie_order="index", own_vertices=True, final_pass=False,
-           first_improving=False, boundary_diagonals="kuhn", curvature="direct", rel_tol=1e-9,
-           quantum=1e-9, seed=0, check=None, progress=None):
+           criterion=None, candidates="all", tie_order="index", own_vertices=True, final_pass=False,
+           first_improving=False, boundary_diagonals="kuhn", curvature="direct", ranking="curvature", rel_tol=1e-9,
+           quantum=1e-9, seed=0, values="data", greedy_key="max", check=None, progress=None):
     """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
 
     Parameters
@@ -156,11 +163,24 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     tol_rms, tol_inf : float, optional
         Stop as soon as E_RMS (eq. 19) or E_inf (eq. 20) over all points is at or
         below the tolerance (or when every candidate is inserted).
-    method : {"paper"}
-        Curvature-ranked selection with data-dependent swapping.
+    method : {"paper", "greedy"}
+        ``paper``: curvature-ranked selection with data-dependent swapping
+        (sections 2-4).  ``greedy``: error-driven selection (Garland & Heckbert
+        1995 lifted to 3-D): repeatedly insert the candidate with the largest
+        residual |f - L|, with the same insertion and swapping; curvature and
+        ranking options do not apply.
+    greedy_key : {"max", "sse"}
+        Greedy only: insert the point with the largest residual overall ("max",
+        aims at E_inf), or the worst point of the tet with the largest sum of
+        squared residuals ("sse", aims at E_RMS).
     criterion, candidates, tie_order, own_vertices, final_pass, first_improving,
     boundary_diagonals, curvature, rel_tol, quantum, seed
         The paper's open choices; see :data:`OPTION_DOCS` and the README.
+    values : {"data", "fit"} or list of them
+        Vertex values of the approximation: the selected points' own values (the
+        paper; a true selection) and/or least-squares values over all points on the
+        same mesh (:mod:`trivsel.fitting`).  With both, every snapshot has a row
+        for each.
     check : callable, optional
         Called as ``check(mesh)`` after the first insertion and at every snapshot
         (tests pass :func:`trivsel.check.check_mesh`).
@@ -177,13 +197,24 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     t_start = time.perf_counter()
     if not isinstance(data, PointData):
         data = sample_grid(resolve_function(data), n)
-    _check_choice("method", method, ("paper",))
+    _check_choice("method", method, ("paper", "greedy"))
+    if criterion is None:  # measured best per method (README, "options")
+        criterion = "sse" if method == "greedy" else "rms"
     _check_choice("criterion", criterion, tuple(_mesh.CRITERIA))
     _check_choice("candidate set", candidates, ("all", "interior"))
     _check_choice("tie order", tie_order, TIE_ORDERS)
+    _check_choice("greedy key", greedy_key, ("max", "sse"))
     _check_choice("boundary diagonals", boundary_diagonals, ("kuhn", "mirrored"))
-    _check_choice("curvature estimator", curvature, ("direct",))
+    _check_choice("curvature estimator", curvature, ("direct", "local-frame"))
+    _check_choice("ranking", ranking, ("curvature", "ascending", "random", "analytic"))
+    if ranking == "analytic" and not ("function" in data.meta):
+        raise InputError("ranking 'analytic' needs a Table-1 function (--function), not a data file")
     fractions = validate_fractions(fractions)
+    values_modes = [values] if isinstance(values, str) else list(values)
+    if not values_modes:
+        raise InputError("values must name at least one of 'data', 'fit'")
+    for v in values_modes:
+        _check_choice("values", v, ("data", "fit"))
     N = data.n_points
     for name, tol in (("tol_rms", tol_rms), ("tol_inf", tol_inf)):
         if tol is not None and not (np.isfinite(tol) and tol >= 0):
@@ -196,8 +227,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     options = dict(method=method, criterion=criterion, candidates=candidates, tie_order=tie_order,
                    own_vertices=bool(own_vertices), final_pass=bool(final_pass),
                    first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
-                   curvature=curvature, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
-                   fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values="data")
+                   curvature=curvature, ranking=ranking, greedy_key=greedy_key, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
+                   fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values=values_modes)
 
     # --- fixed points and initial triangulation of all points (section 3)
     if data.is_grid:
@@ -230,9 +261,18 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     t0 = time.perf_counter()
     from .curvature import absolute_curvature
 
-    K = absolute_curvature(data.points, data.values, tets=all_tets)
+    K = absolute_curvature(data.points, data.values, tets=all_tets, estimator=curvature)
     t_curv = time.perf_counter() - t0
-    order = rank_candidates(K, cand, tie_order=tie_order, points=data.points, seed=seed, quantum=quantum)
+    key = K
+    if ranking == "ascending":
+        key = -K
+    elif ranking == "random":
+        key = np.random.default_rng(seed).random(N)
+    elif ranking == "analytic":
+        from .curvature import analytic_absolute_curvature
+
+        key = analytic_absolute_curvature(data.meta["function"], data.points)
+    order = rank_candidates(key, cand, tie_order=tie_order, points=data.points, seed=seed, quantum=quantum)
 
     # --- insertion with data-dependent swapping (section 4)
     t1 = time.perf_counter()
@@ -256,8 +296,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     t_total = time.perf_counter() - t_start
     timings = {"curvature": t_curv, "selection": t_total - t_curv - t_err - (t1 - t0 - t_curv),
                "errors": t_err, "total": t_total}
-    last = snapshots[-1].n_selected
-    selected = np.concatenate([fixed, order[: last - n_fixed]])
+    selected = snapshots[-1].selected
+    if method == "greedy":
+        order = stats.pop("inserted")
     return ReductionResult(data=data, selected=selected, curvature=K, order=order, snapshots=snapshots,
                            options=options, timings=timings, stats=stats)
 
@@ -265,10 +306,11 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
 def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, tol_inf, check, progress,
          t_start, tet_cap, pool_cap):
     N = data.n_points
+    greedy = options["method"] == "greedy"
     tm = _mesh.TetMesh(data.points, data.values, data.ijk, criterion=options["criterion"],
                        own_vertices=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
-                       pool_capacity=pool_cap)
+                       pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order)
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
@@ -285,9 +327,15 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
 
     if (tol_rms is not None or tol_inf is not None) and tolerance_met():
         reached_tol = True
+    inserted = []  # greedy: the points in the order they were chosen
     for target in targets:
         need = target - n_fixed
-        if pos < need and not reached_tol:
+        if greedy and pos < need and not reached_tol:
+            log = tm.run_greedy(target, stop_tol)
+            inserted.extend(log.tolist())
+            reached_tol = len(log) < need - pos
+            pos += len(log)
+        elif pos < need and not reached_tol:
             if pos == 0:
                 p = order[0]
                 ids = tm.cone(p)  # join the first point to every boundary triangle
@@ -314,10 +362,19 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
             check(snap_mesh)
         r, worst = snap_mesh.residuals()
         errors = error_norms(r, interior)
+        fit = None
+        if "fit" in options["values"]:
+            from .fitting import fit_vertex_values
+
+            verts, w = snap_mesh.point_weights()
+            vtx = snap_mesh.vertices()
+            fv, fr = fit_vertex_values(verts, w, data.values, vtx)
+            fit = {"vertices": vtx, "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
         m = n_fixed + pos
-        snapshots.append(Snapshot(fraction=m / N, n_selected=m, selected=np.concatenate([fixed, order[:pos]]),
+        chosen = np.asarray(inserted, np.int64) if greedy else order[:pos]
+        snapshots.append(Snapshot(fraction=m / N, n_selected=m, selected=np.concatenate([fixed, chosen]),
                                   tets=snap_mesh.tetrahedra(), residuals=r, errors=errors,
-                                  seconds=time.perf_counter() - t_start, flips=snap_mesh.flips))
+                                  seconds=time.perf_counter() - t_start, flips=snap_mesh.flips, fit=fit))
         t_err += time.perf_counter() - te
         if reached_tol:
             break
@@ -328,4 +385,6 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
             s.fraction = req[s.n_selected]
     stats = {"flips": tm.flips, "cases": tm.cases, "tets": int(len(tm.live_ids())),
              "round_cap_hits": int(tm.counters[_mesh.C_ROUNDCAP])}
+    if greedy:
+        stats["inserted"] = np.asarray(inserted, np.int64)
     return snapshots, stats, t_err

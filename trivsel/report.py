@@ -1,0 +1,350 @@
+"""Table 1 of the paper, ours beside the published numbers.
+
+:func:`assemble_table1` joins the rows of one or more ``errors.csv`` files (as
+written by ``trivsel reduce``) with the published values of Table 1
+(``trivsel/data/table1_published.csv``, copied from Hamann & Chen 1994, Table 1)
+into the table the workflow writes as ``results/report/table1.csv``::
+
+    function,fraction,n_selected,E_rms,E_rms_interior,E_inf,E_inf_interior,
+    published_E_rms,published_E_rms_interior,ratio_E_rms,ratio_E_rms_interior
+
+:func:`table1_markdown` renders it in the paper's layout (functions by fractions,
+each cell "ours / published" with the deviation, flagged when outside a
+tolerance, +-10 % by default), followed by the maximum errors, point counts, run
+times and the options used.  :func:`collect_runs` stacks the error tables of a
+parameter sweep into one long table with the options as columns.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from importlib import resources
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from .data import FUNCTIONS
+
+__all__ = [
+    "TABLE1_COLUMNS",
+    "OPTION_KEYS",
+    "load_published",
+    "read_errors",
+    "assemble_table1",
+    "table1_markdown",
+    "write_table1",
+    "collect_runs",
+    "function_label",
+]
+
+TABLE1_COLUMNS = [
+    "function", "fraction", "n_selected", "E_rms", "E_rms_interior", "E_inf", "E_inf_interior",
+    "published_E_rms", "published_E_rms_interior", "ratio_E_rms", "ratio_E_rms_interior",
+]
+
+#: Reduction options recorded per run (the workflow's sweepable keys).
+OPTION_KEYS = ["method", "criterion", "candidates", "tie_order", "boundary_diagonals",
+               "vertices_in_error", "final_pass", "curvature", "seed"]
+
+_KIND = {
+    "quadratic": "Quadratic polynomial",
+    "saddle": "Quadratic polynomial",
+    "cubic": "Cubic polynomial",
+    "exponential": "Exponential function",
+    "trigonometric": "Trigonometric function",
+}
+
+PUBLISHED_SOURCE = ("Hamann, B. and Chen, J.-L. (1994), Data point selection for piecewise trilinear "
+                    "approximation, Table 1 (n = 16)")
+
+
+def function_label(num: int, with_number: bool = True) -> str:
+    """'4. Exponential function: exp(-0.5(x^2 + y^2 + z^2))' as in Table 1."""
+    short, expr, _ = FUNCTIONS[int(num)]
+    label = f"{_KIND.get(short, short.capitalize())}: {expr}"
+    return f"{int(num)}. {label}" if with_number else label
+
+
+def load_published(path=None) -> pd.DataFrame:
+    """Published Table 1: columns function, expression, fraction, E_rms, E_rms_interior."""
+    if path is None:
+        with resources.files("trivsel").joinpath("data/table1_published.csv").open("r") as fh:
+            df = pd.read_csv(fh)
+    else:
+        df = pd.read_csv(path)
+    df["function"] = df["function"].astype(int)
+    df["fraction"] = df["fraction"].astype(float)
+    return df
+
+
+def read_errors(paths) -> pd.DataFrame:
+    """Concatenate ``errors.csv`` files (one per function) into one DataFrame."""
+    if isinstance(paths, (str, Path)):
+        paths = [paths]
+    frames = [pd.read_csv(p) for p in paths]
+    if not frames:
+        raise ValueError("no errors.csv files given")
+    return pd.concat(frames, ignore_index=True)
+
+
+def _fkey(x) -> float:
+    return round(float(x), 9)
+
+
+def assemble_table1(errors: pd.DataFrame, published: pd.DataFrame | None = None) -> pd.DataFrame:
+    """Join our errors with the published Table 1 (one row per function and fraction).
+
+    ``errors`` needs the columns function, fraction, n_selected, E_rms,
+    E_rms_interior, E_inf, E_inf_interior (extra columns are ignored).  Rows are
+    sorted by function, then by decreasing fraction as in the paper.  Published
+    values missing for a (function, fraction) are NaN, and so are the ratios.
+    """
+    need = ["function", "fraction", "n_selected", "E_rms", "E_rms_interior", "E_inf", "E_inf_interior"]
+    missing = [c for c in need if c not in errors.columns]
+    if missing:
+        raise ValueError(f"errors table lacks column(s) {missing}; has {list(errors.columns)}")
+    if published is None:
+        published = load_published()
+    ours = errors[need].copy()
+    ours["function"] = ours["function"].astype(int)
+    ours["fraction"] = ours["fraction"].astype(float)
+    ours["_key"] = ours["fraction"].map(_fkey)
+    dup = ours.duplicated(["function", "_key"])
+    if dup.any():
+        bad = ours.loc[dup, ["function", "fraction"]].to_dict("records")
+        raise ValueError(f"more than one error row for {bad}: pass the runs of one (n, options) at a time")
+    pub = published[["function", "fraction", "E_rms", "E_rms_interior"]].rename(
+        columns={"E_rms": "published_E_rms", "E_rms_interior": "published_E_rms_interior"})
+    pub = pub.assign(_key=pub["fraction"].map(_fkey)).drop(columns="fraction")
+    table = ours.merge(pub, on=["function", "_key"], how="left").drop(columns="_key")
+    table["ratio_E_rms"] = table["E_rms"] / table["published_E_rms"]
+    table["ratio_E_rms_interior"] = table["E_rms_interior"] / table["published_E_rms_interior"]
+    table["n_selected"] = table["n_selected"].astype(int)
+    table = table.sort_values(["function", "fraction"], ascending=[True, False]).reset_index(drop=True)
+    return table[TABLE1_COLUMNS]
+
+
+def _pct(fraction: float) -> str:
+    return f"{100 * fraction:g} %"
+
+
+def _cell(ours, pub, ratio, tol, star=""):
+    if ours is None or (isinstance(ours, float) and math.isnan(ours)):
+        return "n/a"
+    s = f"{ours:.3f}{star}"
+    if pub is None or (isinstance(pub, float) and math.isnan(pub)):
+        return f"{s} / -"
+    dev = 100.0 * (ratio - 1.0)
+    flag = abs(ratio - 1.0) > tol
+    s = f"{s} / {pub:.3f}{star} ({dev:+.1f} %)"
+    return f"**{s} ⚠**" if flag else s
+
+
+def _fmt_value(v):
+    if isinstance(v, float):
+        return f"{v:g}"
+    if isinstance(v, (list, tuple)):
+        return ", ".join(_fmt_value(x) for x in v)
+    return str(v)
+
+
+def table1_markdown(table: pd.DataFrame, tol: float = 0.10, n: int | None = None,
+                    options: dict | None = None, timings: pd.DataFrame | None = None,
+                    title: str | None = None, note: str | None = None) -> str:
+    """Render :func:`assemble_table1`'s output in the paper's layout as Markdown.
+
+    Parameters
+    ----------
+    table : DataFrame with :data:`TABLE1_COLUMNS`.
+    tol : relative tolerance for flagging a cell (0.10 = +-10 %).
+    n : grid resolution of our runs (stated in the title; a note is added when it is not 16).
+    options : the reduction options used (printed as a list).
+    timings : DataFrame with columns function and seconds (and optionally more numeric columns).
+    """
+    fractions = sorted(table["fraction"].unique(), reverse=True)
+    functions = sorted(table["function"].unique())
+    by = {(int(r.function), _fkey(r.fraction)): r for r in table.itertuples(index=False)}
+    lines = []
+    lines.append(f"# {title or 'Table 1: total RMS errors'}" + (f", n = {n}" if n is not None else ""))
+    lines.append("")
+    lines.append("Reproduction of Table 1 of Hamann & Chen (1994). Each cell: **ours / published** "
+                 "(deviation of ours from the published value). The first line of each function is "
+                 "E_RMS over all grid points; the second line, marked \"\\*\", is E_RMS without the boundary "
+                 f"(interior grid points only). Cells outside ±{100 * tol:g} % of the published value are "
+                 "marked ⚠ and set in bold.")
+    if n is not None and n != 16:
+        lines.append("")
+        lines.append(f"Note: the published values are for n = 16; this run uses n = {n}, so the "
+                     "deviations are not like-for-like.")
+    if note:
+        lines += ["", note]
+    lines.append("")
+    lines.append("| Function | " + " | ".join(_pct(f) for f in fractions) + " |")
+    lines.append("|---|" + "---|" * len(fractions))
+    n_in = n_all = 0
+    for fn in functions:
+        row1, row2 = [], []
+        for fr in fractions:
+            r = by.get((int(fn), _fkey(fr)))
+            if r is None:
+                row1.append("n/a")
+                row2.append("n/a")
+                continue
+            row1.append(_cell(r.E_rms, r.published_E_rms, r.ratio_E_rms, tol))
+            row2.append(_cell(r.E_rms_interior, r.published_E_rms_interior, r.ratio_E_rms_interior, tol, "\\*"))
+            for ratio in (r.ratio_E_rms, r.ratio_E_rms_interior):
+                if not (isinstance(ratio, float) and math.isnan(ratio)):
+                    n_all += 1
+                    n_in += abs(ratio - 1.0) <= tol
+        lines.append(f"| {function_label(fn)} | " + " | ".join(row1) + " |")
+        lines.append("| (without boundary) | " + " | ".join(row2) + " |")
+    lines.append("")
+    if n_all:
+        lines.append(f"**{n_in} of {n_all}** published cells are reproduced within ±{100 * tol:g} %.")
+        lines.append("")
+
+    # maximum errors and point counts (not published)
+    lines.append("## Maximum errors and selected points (ours; not in the paper)")
+    lines.append("")
+    lines.append("Each cell: E_inf / E_inf without boundary (\\*), and the number of selected points.")
+    lines.append("")
+    lines.append("| Function | " + " | ".join(_pct(f) for f in fractions) + " |")
+    lines.append("|---|" + "---|" * len(fractions))
+    for fn in functions:
+        cells = []
+        for fr in fractions:
+            r = by.get((int(fn), _fkey(fr)))
+            cells.append("n/a" if r is None else
+                         f"{r.E_inf:.3f} / {r.E_inf_interior:.3f}\\* ({int(r.n_selected)} points)")
+        lines.append(f"| {int(fn)} | " + " | ".join(cells) + " |")
+    lines.append("")
+
+    if timings is not None and len(timings):
+        lines.append("## Run times")
+        lines.append("")
+        cols = [c for c in timings.columns if c != "function"]
+        lines.append("| Function | " + " | ".join(cols) + " |")
+        lines.append("|---|" + "---|" * len(cols))
+        for d in timings.sort_values("function").to_dict("records"):
+            vals = [f"{d[c]:.2f}" if isinstance(d[c], (float, np.floating)) else str(d[c]) for c in cols]
+            lines.append(f"| {int(d['function'])} | " + " | ".join(vals) + " |")
+        total = timings[[c for c in cols if pd.api.types.is_numeric_dtype(timings[c])]].sum()
+        if len(total):
+            lines.append("| total | " + " | ".join(
+                f"{total[c]:.2f}" if c in total.index else "" for c in cols) + " |")
+        lines.append("")
+
+    if options:
+        lines.append("## Options used")
+        lines.append("")
+        for k, v in options.items():
+            lines.append(f"- `{k}`: {_fmt_value(v)}")
+        lines.append("")
+
+    lines.append("## Source of the published values")
+    lines.append("")
+    lines.append(f"{PUBLISHED_SOURCE}; stored as `trivsel/data/table1_published.csv`.")
+    lines.append("")
+    return "\n".join(lines)
+
+
+def _timings(errors: pd.DataFrame, results: list[dict]) -> pd.DataFrame:
+    """Per-function run times: the reduce time from errors.csv (largest 'seconds')
+    and, when result.json has them, its numeric top-level timings."""
+    rows = {}
+    if "seconds" in errors.columns:
+        for fn, grp in errors.groupby("function"):
+            rows.setdefault(int(fn), {})["reduce seconds"] = float(grp["seconds"].max())
+    for res in results:
+        fn = res.get("function")
+        t = res.get("timings")
+        if fn is None or not isinstance(t, dict):
+            continue
+        for k, v in t.items():
+            if isinstance(v, (int, float)) and not isinstance(v, bool):
+                rows.setdefault(int(fn), {})[f"{k} (s)"] = float(v)
+    if not rows:
+        return pd.DataFrame()
+    df = pd.DataFrame.from_dict(rows, orient="index")
+    df.index.name = "function"
+    return df.reset_index()
+
+
+def _options_from_results(results: list[dict]) -> dict | None:
+    opts = [res.get("options") for res in results if isinstance(res.get("options"), dict)]
+    if not opts:
+        return None
+    merged = {}
+    for o in opts:
+        for k, v in o.items():
+            if k in ("function", "fractions", "out"):
+                continue
+            merged.setdefault(k, [])
+            if v not in merged[k]:
+                merged[k].append(v)
+    return {k: (v[0] if len(v) == 1 else v) for k, v in merged.items()}
+
+
+def write_table1(errors_csvs, out_csv, out_md, result_jsons=(), tol: float = 0.10,
+                 published_csv=None, options: dict | None = None, title: str | None = None) -> pd.DataFrame:
+    """Assemble Table 1 from ``errors.csv`` files and write the CSV and the Markdown.
+
+    ``result_jsons`` (the runs' ``result.json``) supply run times and the options
+    used; ``options`` (e.g. the workflow's variant) is printed instead when given.
+    Returns the table.
+    """
+    errors = read_errors(errors_csvs)
+    published = load_published(published_csv)
+    table = assemble_table1(errors, published)
+    results = []
+    for p in result_jsons:
+        with open(p) as fh:
+            res = json.load(fh)
+        if "function" not in res:
+            # fall back on the run's errors.csv sitting next to it
+            sib = Path(p).with_name("errors.csv")
+            if sib.is_file():
+                res["function"] = int(pd.read_csv(sib)["function"].iloc[0])
+        results.append(res)
+    n = None
+    if "n" in errors.columns:
+        ns = sorted(set(int(v) for v in errors["n"]))
+        n = ns[0] if len(ns) == 1 else None
+    md = table1_markdown(table, tol=tol, n=n, options=options or _options_from_results(results),
+                         timings=_timings(errors, results), title=title)
+    out_csv, out_md = Path(out_csv), Path(out_md)
+    out_csv.parent.mkdir(parents=True, exist_ok=True)
+    out_md.parent.mkdir(parents=True, exist_ok=True)
+    table.to_csv(out_csv, index=False, float_format="%.10g")
+    out_md.write_text(md)
+    return table
+
+
+def collect_runs(runs) -> pd.DataFrame:
+    """Stack the error tables of several runs with their options as columns.
+
+    ``runs`` is an iterable of ``(errors_csv, info)`` where ``info`` is a dict of
+    columns to add (``n``, ``variant``, option values...).  Published values are
+    joined on (function, fraction) with ``published_*`` and ``ratio_*`` columns.
+    """
+    frames = []
+    for path, info in runs:
+        df = pd.read_csv(path)
+        for k, v in info.items():
+            if k in df.columns and k in ("function", "n"):
+                continue
+            df[k] = v
+        frames.append(df)
+    if not frames:
+        raise ValueError("no runs given")
+    allruns = pd.concat(frames, ignore_index=True)
+    pub = load_published()[["function", "fraction", "E_rms", "E_rms_interior"]].rename(
+        columns={"E_rms": "published_E_rms", "E_rms_interior": "published_E_rms_interior"})
+    pub["_key"] = pub["fraction"].map(_fkey)
+    allruns["_key"] = allruns["fraction"].map(_fkey)
+    allruns = allruns.merge(pub.drop(columns="fraction"), on=["function", "_key"], how="left").drop(columns="_key")
+    allruns["ratio_E_rms"] = allruns["E_rms"] / allruns["published_E_rms"]
+    allruns["ratio_E_rms_interior"] = allruns["E_rms_interior"] / allruns["published_E_rms_interior"]
+    return allruns

@@ -1,0 +1,67 @@
+# Stage 3, evaluate: E_RMS and E_inf with and without boundary come from each run's
+# errors.csv; here they are joined with the published Table 1 (one table per n and
+# variant) and stacked over the whole sweep.
+
+
+rule table1:
+    input:
+        errors=errors_csvs,
+        results=result_jsons,
+    output:
+        csv=report(
+            "results/runs/n{n}/{variant}/table1.csv",
+            caption="../report/table1.rst",
+            category="Table 1",
+            subcategory="n = {n}, {variant}",
+            labels={"n": "{n}", "variant": "{variant}", "table": "Table 1 (csv)"},
+        ),
+        md=report(
+            "results/runs/n{n}/{variant}/table1.md",
+            caption="../report/table1.rst",
+            category="Table 1",
+            subcategory="n = {n}, {variant}",
+            labels={"n": "{n}", "variant": "{variant}", "table": "Table 1 (Markdown)"},
+        ),
+    params:
+        tolerance=config["tolerance"],
+        options=lambda wildcards: {"n": int(wildcards.n), **VARIANTS[wildcards.variant]},
+        code=CODE_REPORT,
+    log:
+        "results/logs/table1/n{n}/{variant}.log",
+    benchmark:
+        "results/benchmarks/table1/n{n}/{variant}.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/trivsel.yaml"
+    script:
+        "../scripts/table1.py"
+
+
+rule collect_errors:
+    input:
+        [f"{run_dir(n, v, f)}/errors.csv" for n, v, f in all_runs()],
+    output:
+        report(
+            "results/report/errors_all.csv",
+            caption="../report/errors_all.rst",
+            category="Sweep",
+            labels={"table": "all runs (csv)"},
+        ),
+    params:
+        runs=[{"n": n, "variant": v, **VARIANTS[v]} for n, v, f in all_runs()],
+        code=CODE_REPORT,
+    log:
+        "results/logs/collect_errors.log",
+    benchmark:
+        "results/benchmarks/collect_errors.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/trivsel.yaml"
+    script:
+        "../scripts/collect_errors.py"
