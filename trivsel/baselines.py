@@ -71,6 +71,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .errors import error_norms
 from .triangulation import (
     boundary_triangles,
     cube_corners,
@@ -100,7 +101,7 @@ ERROR_KEYS = ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")
 
 
 def errors_at_points(values, approx, interior_mask=None) -> dict:
-    """Total RMS and maximum errors of eqs. (19)-(20).
+    """Total RMS and maximum errors of eqs. (19)-(20), via :func:`trivsel.errors.error_norms`.
 
     Parameters
     ----------
@@ -125,15 +126,14 @@ def errors_at_points(values, approx, interior_mask=None) -> dict:
     a = np.asarray(approx, dtype=float)
     if f.shape != a.shape:
         raise ValueError(f"values {f.shape} and approx {a.shape} differ in shape")
-    d = np.abs(f - a)
+    d = f - a
     mask = np.ones(d.shape, bool) if interior_mask is None else np.asarray(interior_mask, bool)
-    di = d[mask]
-    return {
-        "E_rms": float(np.sqrt(np.mean(d**2))) if d.size else float("nan"),
-        "E_rms_interior": float(np.sqrt(np.mean(di**2))) if di.size else float("nan"),
-        "E_inf": float(d.max()) if d.size else float("nan"),
-        "E_inf_interior": float(di.max()) if di.size else float("nan"),
-    }
+    res = error_norms(d, mask)  # the one formula of eqs. (19)-(20), shared with reduce()
+    if not d.size:  # error_norms gives 0 on an empty set; here "no points" is NaN
+        res.update(E_rms=float("nan"), E_inf=float("nan"))
+    if not mask.any():
+        res.update(E_rms_interior=float("nan"), E_inf_interior=float("nan"))
+    return res
 
 
 # --------------------------------------------------------------------------- evaluation
