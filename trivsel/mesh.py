@@ -60,51 +60,72 @@ EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int6
 # ----------------------------------------------------------------------------- predicates
 
 @njit(cache=True)
-def _orient(S, a, b, c, d):
-    """Sign of orient3d of original points a, b, c, d (exact on grids, robust otherwise)."""
-    if S[_FOPT][O_USEINT] > 0.0:
-        I = S[_IC]
+def _sign(I, P, ui, a, b, c, d):
+    """Sign of orient3d of original points a, b, c, d: exact on the integer grid
+    coordinates ``I`` when ``ui``, robust on the float coordinates ``P`` otherwise.
+
+    The hot predicates take the coordinate arrays themselves, not the state tuple:
+    pulling an array out of the tuple costs a reference-count update per call,
+    which made a containment test about 30 times slower."""
+    if ui:
         v = orient3d_int(I[a, 0], I[a, 1], I[a, 2], I[b, 0], I[b, 1], I[b, 2],
                          I[c, 0], I[c, 1], I[c, 2], I[d, 0], I[d, 1], I[d, 2])
         return 1 if v > 0 else (-1 if v < 0 else 0)
-    P = S[_P]
     return orient3d_float_sign(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
                                P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
 
 
 @njit(cache=True)
-def _volume(S, a, b, c, d):
+def _vol(I, P, ui, a, b, c, d):
     """orient3d value as float: exact integer on grids, float determinant otherwise."""
-    if S[_FOPT][O_USEINT] > 0.0:
-        I = S[_IC]
+    if ui:
         return float(orient3d_int(I[a, 0], I[a, 1], I[a, 2], I[b, 0], I[b, 1], I[b, 2],
                                   I[c, 0], I[c, 1], I[c, 2], I[d, 0], I[d, 1], I[d, 2]))
-    P = S[_P]
     return orient3d_float(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
                           P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
 
 
 @njit(cache=True)
-def _locate_in(S, q0, q1, q2, q3, p):
+def _locate(I, P, F, ui, q0, q1, q2, q3, p):
     """Closed containment of point p in tet (q0..q3): (inside, n_zero_signs, interpolated value).
 
     The barycentric weights (eq. 13) are the four sub-volumes with p replacing one
-    vertex; the interpolant is the linear polynomial L of eq. 16.
+    vertex; the interpolant is the linear polynomial L of eq. 16.  On grids the
+    exact integer sub-volumes serve both as signs and as weights.
     """
-    s0 = _orient(S, p, q1, q2, q3)
+    if ui:
+        w0 = orient3d_int(I[p, 0], I[p, 1], I[p, 2], I[q1, 0], I[q1, 1], I[q1, 2],
+                          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        if w0 < 0:
+            return False, 0, 0.0
+        w1 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[p, 0], I[p, 1], I[p, 2],
+                          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        if w1 < 0:
+            return False, 0, 0.0
+        w2 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
+                          I[p, 0], I[p, 1], I[p, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        if w2 < 0:
+            return False, 0, 0.0
+        w3 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
+                          I[q2, 0], I[q2, 1], I[q2, 2], I[p, 0], I[p, 1], I[p, 2])
+        if w3 < 0:
+            return False, 0, 0.0
+        nz = (w0 == 0) + (w1 == 0) + (w2 == 0) + (w3 == 0)
+        tot = float(w0 + w1 + w2 + w3)
+        return True, nz, (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
+    s0 = _sign(I, P, ui, p, q1, q2, q3)
     if s0 < 0:
         return False, 0, 0.0
-    s1 = _orient(S, q0, p, q2, q3)
+    s1 = _sign(I, P, ui, q0, p, q2, q3)
     if s1 < 0:
         return False, 0, 0.0
-    s2 = _orient(S, q0, q1, p, q3)
+    s2 = _sign(I, P, ui, q0, q1, p, q3)
     if s2 < 0:
         return False, 0, 0.0
-    s3 = _orient(S, q0, q1, q2, p)
+    s3 = _sign(I, P, ui, q0, q1, q2, p)
     if s3 < 0:
         return False, 0, 0.0
     nz = (s0 == 0) + (s1 == 0) + (s2 == 0) + (s3 == 0)
-    F = S[_F]
     if p == q0:
         return True, nz, F[q0]
     if p == q1:
@@ -113,19 +134,34 @@ def _locate_in(S, q0, q1, q2, q3, p):
         return True, nz, F[q2]
     if p == q3:
         return True, nz, F[q3]
-    w0 = _volume(S, p, q1, q2, q3) if s0 > 0 else 0.0
-    w1 = _volume(S, q0, p, q2, q3) if s1 > 0 else 0.0
-    w2 = _volume(S, q0, q1, p, q3) if s2 > 0 else 0.0
-    w3 = _volume(S, q0, q1, q2, p) if s3 > 0 else 0.0
+    w0 = _vol(I, P, ui, p, q1, q2, q3) if s0 > 0 else 0.0
+    w1 = _vol(I, P, ui, q0, p, q2, q3) if s1 > 0 else 0.0
+    w2 = _vol(I, P, ui, q0, q1, p, q3) if s2 > 0 else 0.0
+    w3 = _vol(I, P, ui, q0, q1, q2, p) if s3 > 0 else 0.0
     tot = w0 + w1 + w2 + w3
-    val = (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
-    return True, nz, val
+    return True, nz, (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
 
 
 @njit(cache=True)
-def _crit(S, sse, mx, cnt):
-    """Per-tet error for the swap criterion: RMS (eq. 14), max (eq. 15) or SSE."""
-    c = S[_FOPT][O_CRIT]
+def _orient(S, a, b, c, d):
+    """:func:`_sign` on the state tuple (for checks and tests; not for inner loops)."""
+    return _sign(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, c, d)
+
+
+@njit(cache=True)
+def _volume(S, a, b, c, d):
+    return _vol(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, c, d)
+
+
+@njit(cache=True)
+def _locate_in(S, q0, q1, q2, q3, p):
+    """:func:`_locate` on the state tuple (for checks and tests; not for inner loops)."""
+    return _locate(S[_IC], S[_P], S[_F], S[_FOPT][O_USEINT] > 0.0, q0, q1, q2, q3, p)
+
+
+@njit(cache=True)
+def _crit(c, sse, mx, cnt):
+    """Per-tet error for swap criterion c: RMS (eq. 14) if 0, max (eq. 15) if 1, else SSE."""
     if c == 0.0:
         return np.sqrt(sse / cnt) if cnt > 0 else 0.0
     if c == 1.0:
@@ -267,6 +303,10 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
     or edge splits hull faces): then it becomes a hull face.  Returns the
     new tet ids (an empty array and S[_CTR][C_ERROR] set on failure).
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     nbr = S[_NBR]
     ctr = S[_CTR]
@@ -368,7 +408,7 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
         bestr = 0.0
         for j in range(m):
             p = buf[j]
-            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
             if not inside:
                 continue
             pool[top + L] = p
@@ -410,8 +450,12 @@ def _replace(S, old, nold, newq, nnew, new_hull=False):
 @njit(cache=True)
 def _positive(S, newq, nnew):
     """Admissibility: every new tet has strictly positive volume."""
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     for k in range(nnew):
-        if _orient(S, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
+        if _sign(I_, P_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
             return False
     return True
 
@@ -424,6 +468,10 @@ def _evaluate(S, old, nold, newq, nnew):
     (iii) of section 4; for SSE the sum of squared residuals over the points of the
     configuration, each counted once (the exact change of the global L2 error).
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     crit = S[_FOPT][O_CRIT]
     ownvert = S[_FOPT][O_OWNVERT] > 0.0
     m = _gather(S, old, nold)
@@ -437,7 +485,7 @@ def _evaluate(S, old, nold, newq, nnew):
             p = buf[j]
             before += resid[p] * resid[p]
             for k in range(nnew):
-                inside, nz, val = _locate_in(S, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3], p)
+                inside, nz, val = _locate(I_, P_, F_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3], p)
                 if inside:
                     r = F[p] - val
                     after += r * r
@@ -445,7 +493,7 @@ def _evaluate(S, old, nold, newq, nnew):
         return before, after
     for k in range(nold):
         t = old[k]
-        before += _crit(S, S[_TSSE][t], S[_TMAX][t], S[_TCNT][t])
+        before += _crit(crit, S[_TSSE][t], S[_TMAX][t], S[_TCNT][t])
     for k in range(nnew):
         q0 = newq[k, 0]
         q1 = newq[k, 1]
@@ -456,14 +504,14 @@ def _evaluate(S, old, nold, newq, nnew):
         cnt = 0
         for j in range(m):
             p = buf[j]
-            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
             if inside and (ownvert or (p != q0 and p != q1 and p != q2 and p != q3)):
                 r = F[p] - val
                 sse += r * r
                 if abs(r) > mx:
                     mx = abs(r)
                 cnt += 1
-        after += _crit(S, sse, mx, cnt)
+        after += _crit(crit, sse, mx, cnt)
     return before, after
 
 
@@ -479,6 +527,10 @@ def insert_point(S, p):
     (case iii: each -> 2).  Each is replaced by the tets joining p to its faces
     that do not contain p.  Boundary faces and edges are handled alike.
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     nbr = S[_NBR]
     t0 = S[_OWNER][p]
@@ -497,10 +549,10 @@ def insert_point(S, p):
         q1 = tets[t, 1]
         q2 = tets[t, 2]
         q3 = tets[t, 3]
-        sg[k, 0] = _orient(S, p, q1, q2, q3)
-        sg[k, 1] = _orient(S, q0, p, q2, q3)
-        sg[k, 2] = _orient(S, q0, q1, p, q3)
-        sg[k, 3] = _orient(S, q0, q1, q2, p)
+        sg[k, 0] = _sign(I_, P_, ui_, p, q1, q2, q3)
+        sg[k, 1] = _sign(I_, P_, ui_, q0, p, q2, q3)
+        sg[k, 2] = _sign(I_, P_, ui_, q0, q1, p, q3)
+        sg[k, 3] = _sign(I_, P_, ui_, q0, q1, q2, p)
         for i in range(4):
             if sg[k, i] == 0:
                 u = nbr[t, i]
@@ -627,6 +679,10 @@ def edge_ring(S, t, a, b, old, ring):
     Returns k for a closed ring (interior edge) of at most old.shape[0] tets, or -1
     for an edge on the hull or a longer ring.
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     nbr = S[_NBR]
     cap = old.shape[0]
@@ -640,7 +696,7 @@ def edge_ring(S, t, a, b, old, ring):
                 x = v
             else:
                 y = v
-    if _orient(S, a, b, x, y) < 0:
+    if _sign(I_, P_, ui_, a, b, x, y) < 0:
         x, y = y, x
     # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
     k = 0
@@ -905,6 +961,10 @@ def run_insertions(S, order, start, stop, tol_rms, n_total):
 @njit(cache=True)
 def fill_buckets(S, ids):
     """Buckets, errors and residuals of a fresh mesh whose tets are ids (all points)."""
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     F = S[_F]
     N = F.shape[0]
@@ -925,7 +985,7 @@ def fill_buckets(S, ids):
         best = -1
         bestr = 0.0
         for p in range(N):
-            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
             if not inside:
                 continue
             if top + L >= pool.shape[0]:
@@ -972,6 +1032,10 @@ def residuals(S, out):
     Returns the largest disagreement between two tets containing the same point
     (zero for a continuous interpolant up to rounding).
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     alive = S[_ALIVE]
     F = S[_F]
@@ -985,7 +1049,7 @@ def residuals(S, out):
         s = S[_BSTART][t]
         for j in range(S[_BLEN][t]):
             p = pool[s + j]
-            inside, nz, val = _locate_in(S, q0, q1, q2, q3, p)
+            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
             r = F[p] - val
             if seen[p]:
                 worst = max(worst, abs(r - out[p]))
@@ -1136,6 +1200,10 @@ def run_greedy(S, stop_nvert, tol_rms, n_total, log):
 @njit(cache=True)
 def point_weights(S, verts, weights):
     """For every original point: the 4 vertices of a tet containing it and its barycentric weights."""
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     owner = S[_OWNER]
     for p in range(S[_F].shape[0]):
@@ -1145,10 +1213,10 @@ def point_weights(S, verts, weights):
         verts[p, 1] = q1
         verts[p, 2] = q2
         verts[p, 3] = q3
-        w0 = max(_volume(S, p, q1, q2, q3), 0.0)
-        w1 = max(_volume(S, q0, p, q2, q3), 0.0)
-        w2 = max(_volume(S, q0, q1, p, q3), 0.0)
-        w3 = max(_volume(S, q0, q1, q2, p), 0.0)
+        w0 = max(_vol(I_, P_, ui_, p, q1, q2, q3), 0.0)
+        w1 = max(_vol(I_, P_, ui_, q0, p, q2, q3), 0.0)
+        w2 = max(_vol(I_, P_, ui_, q0, q1, p, q3), 0.0)
+        w3 = max(_vol(I_, P_, ui_, q0, q1, q2, p), 0.0)
         tot = w0 + w1 + w2 + w3
         weights[p, 0] = w0 / tot
         weights[p, 1] = w1 / tot
