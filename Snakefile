@@ -5,6 +5,8 @@
 #   snakemake --report report.html                     HTML report after a run
 #
 # Stages (workflow/rules/): data -> reduce -> evaluate -> figures -> report.
+# Optional stage methods (config/methods.yaml): every method at matched vertex counts.
+# Optional stage ablation (config/ablation.yaml): the open choices against Table 1.
 # Results layout: results/README.md.
 
 from snakemake.utils import min_version, validate
@@ -27,15 +29,20 @@ include: "workflow/rules/reduce.smk"
 include: "workflow/rules/evaluate.smk"
 include: "workflow/rules/figures.smk"
 include: "workflow/rules/report.smk"
+include: "workflow/rules/methods.smk"
+include: "workflow/rules/ablation.smk"
 
 
 # Jobs that only collect or copy files run on the submitting host, not as cluster jobs.
 localrules:
     all,
     publish,
+    methods_table,
+    ablation_report,
 
 
 rule all:
     input:
         all_targets(),
+        ABLATION_TARGETS,
     default_target: True

@@ -110,7 +110,7 @@ def test_final_pass_never_worsens_the_criterion_sum():
     d = sample_grid(2, 6)
     r = trivsel.reduce(d, fractions=[0.3])
     tm = TetMesh(d.points, d.values, d.ijk)
-    tm.start(box_tetrahedra(d.shape))
+    tm.start(box_tetrahedra(d.shape, r.options["boundary_diagonals"]))
     order = r.order
     ids = tm.cone(order[0])
     tm.swap(ids)

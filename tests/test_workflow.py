@@ -16,7 +16,7 @@ from trivsel.report import TABLE1_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 SNAKEFILE = REPO / "Snakefile"
-PRIMARY = "method~paper_crit~rms_cand~all_tie~index_diag~kuhn_verr~yes_final~no_curv~direct_seed~0"
+PRIMARY = "method~paper_crit~rms_cand~all_tie~index_diag~mirrored_verr~yes_final~no_curv~direct_seed~0"
 
 
 def run_smk(workdir, *args, timeout=300):

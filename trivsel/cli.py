@@ -47,6 +47,8 @@ def _add_option_args(p):
     g.add_argument("--first-improving", action="store_true", help=OPTION_DOCS["first_improving"])
     g.add_argument("--curvature", default=DEFAULTS["curvature"], choices=["direct", "local-frame"],
                    help=OPTION_DOCS["curvature"])
+    g.add_argument("--neighbourhood", default=DEFAULTS["neighbourhood"], choices=["kuhn", "two-ring", "box"],
+                   help=OPTION_DOCS["neighbourhood"])
     g.add_argument("--ranking", default=DEFAULTS["ranking"], choices=["curvature", "ascending", "random", "analytic"],
                    help=OPTION_DOCS["ranking"])
     g.add_argument("--rel-tol", type=float, default=DEFAULTS["rel_tol"], help=OPTION_DOCS["rel_tol"])
@@ -116,6 +118,7 @@ def _cmd_reduce(a):
                     own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
                     rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
+                    neighbourhood=a.neighbourhood,
                     seed=a.seed, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()

@@ -21,7 +21,8 @@ from .data import PointData, resolve_function, sample_grid
 from .errors import error_norms
 from .errors_input import InputError
 from .selection import TIE_ORDERS, candidate_points, count_for_fraction, rank_candidates, validate_fractions
-from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles, kuhn_tetrahedra
+from .triangulation import (box_tetrahedra, cube_corners, delaunay_tetrahedra, edge_neighbours, hull_triangles,
+                            kuhn_edge_neighbours, kuhn_tetrahedra, neighbour_graph)
 
 __all__ = ["reduce", "ReductionResult", "Snapshot", "DEFAULTS", "OPTION_DOCS"]
 
@@ -34,8 +35,9 @@ DEFAULTS = {
     "own_vertices": True,
     "final_pass": False,
     "first_improving": False,
-    "boundary_diagonals": "kuhn",
+    "boundary_diagonals": "mirrored",
     "curvature": "direct",
+    "neighbourhood": "kuhn",
     "ranking": "curvature",
     "rel_tol": 1e-9,
     "quantum": 1e-9,
@@ -53,6 +55,8 @@ OPTION_DOCS = {
     "boundary_diagonals": "diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored'",
     "curvature": "curvature estimator: 'direct' least-squares quadratic in (x, y, z), or 'local-frame' "
                  "(Hamann 1994b: quadratic height function over the tangent space of an estimated 4-D normal)",
+    "neighbourhood": "points of the curvature fit: 'kuhn' edge neighbours (2-ring where rank-deficient), "
+                     "'two-ring' always, or 'box' (the 26 grid neighbours)",
     "ranking": "insertion order: 'curvature' (descending K, the paper), or the diagnostic orders 'ascending' "
                "(K ascending), 'random' (seeded) and 'analytic' (descending exact K of a Table-1 function)",
     "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
@@ -146,8 +150,9 @@ def _check_choice(name, value, choices):
 
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, method="paper",
            criterion=None, candidates="all", tie_order="index", own_vertices=True, final_pass=False,
-           first_improving=False, boundary_diagonals="kuhn", curvature="direct", ranking="curvature", rel_tol=1e-9,
-           quantum=1e-9, seed=0, values="data", greedy_key="max", check=None, progress=None):
+           first_improving=False, boundary_diagonals="mirrored", curvature="direct", ranking="curvature", rel_tol=1e-9,
+           quantum=1e-9, seed=0, values="data", greedy_key="max", neighbourhood="kuhn", check=None,
+           progress=None):
     """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
 
     Parameters
@@ -169,6 +174,10 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         1995 lifted to 3-D): repeatedly insert the candidate with the largest
         residual |f - L|, with the same insertion and swapping; curvature and
         ranking options do not apply.
+    neighbourhood : {"kuhn", "two-ring", "box"}
+        Points of the curvature fit (section 2): edge neighbours in the initial
+        triangulation (widened to the 2-ring where rank-deficient), always the
+        2-ring, or (grids) the 26 surrounding grid points.
     greedy_key : {"max", "sse"}
         Greedy only: insert the point with the largest residual overall ("max",
         aims at E_inf), or the worst point of the tet with the largest sum of
@@ -204,6 +213,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     _check_choice("candidate set", candidates, ("all", "interior"))
     _check_choice("tie order", tie_order, TIE_ORDERS)
     _check_choice("greedy key", greedy_key, ("max", "sse"))
+    _check_choice("neighbourhood", neighbourhood, ("kuhn", "two-ring", "box"))
+    if neighbourhood == "box" and not data.is_grid:
+        raise InputError("neighbourhood 'box' needs grid data")
     _check_choice("boundary diagonals", boundary_diagonals, ("kuhn", "mirrored"))
     _check_choice("curvature estimator", curvature, ("direct", "local-frame"))
     _check_choice("ranking", ranking, ("curvature", "ascending", "random", "analytic"))
@@ -227,14 +239,15 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     options = dict(method=method, criterion=criterion, candidates=candidates, tie_order=tie_order,
                    own_vertices=bool(own_vertices), final_pass=bool(final_pass),
                    first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
-                   curvature=curvature, ranking=ranking, greedy_key=greedy_key, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
+                   curvature=curvature, ranking=ranking, greedy_key=greedy_key,
+                   neighbourhood=neighbourhood, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
                    fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values=values_modes)
 
     # --- fixed points and initial triangulation of all points (section 3)
     if data.is_grid:
         fixed = cube_corners(data.shape)
         start_tets = box_tetrahedra(data.shape, boundary_diagonals)
-        all_tets = kuhn_tetrahedra(data.shape)
+        all_tets = None  # the Kuhn split; its edge graph comes from the stencil below
     else:
         _, fixed = hull_triangles(data.points)
         local = delaunay_tetrahedra(data.points[fixed])
@@ -261,7 +274,14 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     t0 = time.perf_counter()
     from .curvature import absolute_curvature
 
-    K = absolute_curvature(data.points, data.values, tets=all_tets, estimator=curvature)
+    if data.is_grid:
+        graph = kuhn_edge_neighbours(data.shape)
+        if curvature == "local-frame":  # needs the tets for its normals
+            all_tets = kuhn_tetrahedra(data.shape)
+    else:
+        graph = edge_neighbours(all_tets, N)
+    graph = neighbour_graph(*graph, shape=data.shape, kind=neighbourhood)
+    K = absolute_curvature(data.points, data.values, tets=all_tets, neighbours=graph, estimator=curvature)
     t_curv = time.perf_counter() - t0
     key = K
     if ranking == "ascending":

@@ -29,6 +29,8 @@ __all__ = [
     "delaunay_tetrahedra",
     "boundary_triangles",
     "edge_neighbours",
+    "kuhn_edge_neighbours",
+    "neighbour_graph",
     "two_ring",
     "cube_corners",
     "cube_boundary_triangles",
@@ -130,6 +132,68 @@ def edge_neighbours(tets, n_points: int):
     indptr = np.zeros(n_points + 1, dtype=np.int64)
     indptr[1:] = np.cumsum(np.bincount(src, minlength=n_points))
     return indptr, dst
+
+
+def kuhn_edge_neighbours(shape):
+    """Edge-neighbour graph of :func:`kuhn_tetrahedra` built directly from its stencil.
+
+    Every edge of the Kuhn split joins grid points whose index offsets are a
+    nonzero vector with components in {0, 1} or in {0, -1} (the edges of the
+    cube paths from 000 to 111), so an interior point has 14 neighbours.  Same CSR
+    arrays as :func:`edge_neighbours` on the tets, without sorting 7 N pairs.
+    """
+    sx, sy, sz = (int(s) for s in shape)
+    offs = np.array([o for o in itertools.product((0, 1), repeat=3) if any(o)], dtype=np.int64)
+    offs = np.concatenate([-offs, offs])  # 14 offsets
+    offs = offs[np.lexsort((offs[:, 2], offs[:, 1], offs[:, 0]))]  # ascending linear offset
+    ii, jj, kk = np.meshgrid(np.arange(sx), np.arange(sy), np.arange(sz), indexing="ij")
+    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
+    n = len(ijk)
+    nb = ijk[:, None, :] + offs[None, :, :]  # (n, 14, 3)
+    ok = np.all((nb >= 0) & (nb < np.array([sx, sy, sz])), axis=2)
+    lin = (nb[..., 0] * sy + nb[..., 1]) * sz + nb[..., 2]
+    indptr = np.zeros(n + 1, dtype=np.int64)
+    indptr[1:] = np.cumsum(ok.sum(axis=1))
+    return indptr, lin[ok]
+
+
+def neighbour_graph(indptr, indices, shape=None, kind: str = "kuhn"):
+    """Neighbourhood of each point for the curvature fit, as CSR ``(indptr, indices)``.
+
+    ``kind``: ``"kuhn"`` returns the given edge graph (of the initial triangulation);
+    ``"two-ring"`` adds the neighbours' neighbours; ``"box"`` (grids only, needs
+    ``shape``) is the 26 surrounding grid points.
+    """
+    import scipy.sparse as sp
+
+    n = len(indptr) - 1
+    if kind == "kuhn":
+        return indptr, indices
+    if kind == "two-ring":
+        a = sp.csr_matrix((np.ones(len(indices)), indices, indptr), shape=(n, n)) + sp.identity(n, format="csr")
+        a = (a @ a).tocsr()
+    elif kind == "box":
+        if shape is None:
+            raise ValueError("the 'box' neighbourhood needs grid data")
+        sx, sy, sz = (int(s) for s in shape)
+        ii, jj, kk = np.meshgrid(np.arange(sx), np.arange(sy), np.arange(sz), indexing="ij")
+        ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
+        rows, cols = [], []
+        for d in itertools.product((-1, 0, 1), repeat=3):
+            if d == (0, 0, 0):
+                continue
+            q = ijk + np.asarray(d)
+            ok = np.all((q >= 0) & (q < np.array([sx, sy, sz])), axis=1)
+            rows.append(np.flatnonzero(ok))
+            cols.append((q[ok, 0] * sy + q[ok, 1]) * sz + q[ok, 2])
+        r, c = np.concatenate(rows), np.concatenate(cols)
+        a = sp.csr_matrix((np.ones(len(r)), (r, c)), shape=(n, n))
+    else:
+        raise ValueError(f"unknown neighbourhood {kind!r}: choose 'kuhn', 'two-ring' or 'box'")
+    a.setdiag(0)
+    a.eliminate_zeros()
+    a.sort_indices()
+    return a.indptr.astype(np.int64), a.indices.astype(np.int64)
 
 
 def two_ring(indptr, indices, vertices):

@@ -70,7 +70,7 @@ wildcard_constraints:
 # a hash of the trivsel modules it runs.  Editing the package then reruns exactly
 # the affected jobs (the package is not a script, so Snakemake would not see it).
 _PKG_DIR = Path(importlib.util.find_spec("trivsel").origin).parent
-_NOT_CORE = {"figures.py", "report.py", "compare.py"}
+_NOT_CORE = {"figures.py", "report.py", "compare.py", "methods.py", "ablation.py"}
 
 
 def source_hash(*names):
@@ -90,6 +90,8 @@ CODE_CORE = source_hash()
 CODE_DATA = source_hash("data.py")
 CODE_REPORT = source_hash("report.py", "data.py")
 CODE_FIGURES = source_hash("figures.py", "report.py", "data.py", "triangulation.py")
+CODE_METHODS = CODE_CORE + source_hash("methods.py")
+CODE_METHODS_REPORT = source_hash("methods.py", "figures.py", "data.py")
 
 
 def reduce_cli_args(options):
@@ -146,6 +148,8 @@ def all_targets():
             targets += [f"results/runs/n{n}/{v}/figures/{name}" for name in figure_names()]
     if config["golden_table"]:
         targets.append("results/report/golden_check.txt")
+    if config["methods"]:
+        targets += methods_targets()
     return targets
 
 
@@ -167,3 +171,25 @@ def reduce_runtime(wildcards, attempt):
 
 def figure_mem_mb(wildcards, attempt):
     return int(1500 + 0.02 * _points(wildcards)) * attempt
+
+
+# --- stage "methods" (workflow/rules/methods.smk; on with `methods: true`): every method at
+# matched counts, at the Table-1 fractions and the sweep methods_fractions.
+METHODS_FRACTIONS = sorted(set(FRACTIONS) | set(float(f) for f in config["methods_fractions"]), reverse=True)
+
+
+def methods_targets():
+    targets = ["results/report/methods.csv", "results/report/methods.md"]
+    targets += [f"results/report/figures/methods_f{f}_n{n}.png" for n in NS for f in FUNCTIONS]
+    return targets
+
+
+# Measured on this project's machine for n = 16 (4913 points), every method at 6 counts:
+# 10-16 s and 0.30-0.35 GB (max RSS) per job.
+def methods_mem_mb(wildcards, attempt):
+    return int(1000 + 0.05 * _points(wildcards)) * attempt
+
+
+def methods_runtime(wildcards, attempt):
+    """Minutes: about ten reductions' worth (three trivsel runs, 5 VTK runs per count)."""
+    return int(10 + 10 * (_points(wildcards) / 35937) ** 1.5) * attempt

@@ -7,6 +7,10 @@ rule table1:
     input:
         errors=errors_csvs,
         results=result_jsons,
+        # with `ablation: true`, each deviating cell of table1.md names the closest variant
+        ablation=lambda wildcards: (
+            ["results/report/ablation.csv"] if config["ablation"] and int(wildcards.n) == PRIMARY_N else []
+        ),
     output:
         csv=report(
             "results/runs/n{n}/{variant}/table1.csv",

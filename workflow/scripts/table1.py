@@ -7,6 +7,8 @@ sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 from trivsel.report import write_table1  # noqa: E402
 
 sm = snakemake  # noqa: F821
+ablation = getattr(sm.input, "ablation", None) or []  # results/report/ablation.csv with `ablation: true`
+ablation = [ablation] if isinstance(ablation, str) else list(ablation)
 table = write_table1(
     list(sm.input.errors),
     sm.output.csv,
@@ -14,5 +16,6 @@ table = write_table1(
     result_jsons=list(sm.input.results),
     tol=float(sm.params.tolerance),
     options=dict(sm.params.options),
+    ablation_csv=ablation[0] if ablation else None,
 )
 print(table.to_string())

@@ -1,0 +1,74 @@
+# Optional stage, ablation (issue 5): every open choice of the paper, alone and in
+# combinations, against Table 1.  Off by default (config `ablation: false`, so the paper
+# run stays fast); on with   snakemake -c all --configfile config/ablation.yaml
+# One job per variant runs all functions at the primary n (trivsel.ablation.run_variant);
+# ablation_report stacks them into results/report/ablation.csv and ablation.md.
+# Helpers live in the package (trivsel.ablation), so this file has rules only.
+
+import trivsel.ablation as ablation_pkg
+
+ABLATION_VARIANTS = (
+    ablation_pkg.variant_names(config["ablation_variants"]) if config["ablation"] else []
+)
+ABLATION_TARGETS = (
+    ["results/report/ablation.csv", "results/report/ablation.md"] if config["ablation"] else []
+)
+ABLATION_CODE = source_hash("ablation.py") + CODE_CORE
+
+
+rule ablation_run:
+    output:
+        "results/ablation/n{n}/{ablation_variant}.csv",
+    params:
+        functions=FUNCTIONS,
+        fractions=FRACTIONS,
+        code=ABLATION_CODE,
+    wildcard_constraints:
+        ablation_variant="|".join(re.escape(v) for v in ABLATION_VARIANTS) or "default",
+    log:
+        "results/logs/ablation_run/n{n}/{ablation_variant}.log",
+    benchmark:
+        "results/benchmarks/ablation_run/n{n}/{ablation_variant}.tsv"
+    threads: 1
+    resources:
+        mem_mb=reduce_mem_mb,
+        runtime=lambda wildcards, attempt: reduce_runtime(wildcards, attempt) * len(FUNCTIONS),
+    conda:
+        "../envs/trivsel.yaml"
+    script:
+        "../scripts/ablation_run.py"
+
+
+rule ablation_report:
+    input:
+        expand("results/ablation/n{n}/{v}.csv", n=PRIMARY_N, v=ABLATION_VARIANTS),
+    output:
+        csv=report(
+            "results/report/ablation.csv",
+            caption="../report/ablation.rst",
+            category="Ablation",
+            labels={"table": "ablation (csv, one row per variant, function, fraction)"},
+        ),
+        md=report(
+            "results/report/ablation.md",
+            caption="../report/ablation.rst",
+            category="Ablation",
+            labels={"table": "ablation summary (Markdown)"},
+        ),
+        summary="results/report/ablation_summary.csv",
+        closest="results/report/ablation_closest.csv",
+    params:
+        tolerance=config["tolerance"],
+        code=source_hash("ablation.py", "report.py"),
+    log:
+        "results/logs/ablation_report.log",
+    benchmark:
+        "results/benchmarks/ablation_report.tsv"
+    threads: 1
+    resources:
+        mem_mb=500,
+        runtime=5,
+    conda:
+        "../envs/trivsel.yaml"
+    script:
+        "../scripts/ablation_report.py"
