@@ -145,6 +145,26 @@ def test_flip23_not_admissible_when_segment_misses_the_face(exact):
     check_mesh(tm, hull_volume=48.0)
 
 
+@pytest.mark.parametrize("exact", [True, False])
+def test_boundary_flip22_between_coplanar_hull_faces(exact):
+    # square base in z = 0 split along p0-p2, apex above: the hull edge p0-p2 has two
+    # coplanar hull faces and two tets around it; the 2-2 flip moves it to p1-p3
+    pts = [[0, 0, 0], [4, 0, 0], [4, 4, 0], [0, 4, 0], [1, 1, 4]]
+    tets = [[0, 1, 2, 4], [0, 2, 3, 4]]
+    tm = _mesh(pts, tets, exact=exact)
+    t = tm.live_ids()[0]
+    assert tm.flip22(t, 1, 4, force=True) is None  # not a coplanar pair: (1, 4) is a hull edge of one tet
+    ids = tm.flip22(t, 0, 2, force=True)
+    assert ids is not None and len(ids) == 2
+    check_mesh(tm)
+    edges = {tuple(sorted((a, b))) for tet in tm.tetrahedra() for a in tet for b in tet if a != b}
+    assert (1, 3) in edges and (0, 2) not in edges
+    t2 = tm.live_ids()[0]
+    assert tm.flip22(t2, 1, 3, force=True) is not None  # and back
+    check_mesh(tm)
+    assert sorted(map(sorted, tm.tetrahedra().tolist())) == sorted(map(sorted, tets))
+
+
 def test_flip_is_applied_only_when_it_lowers_the_evaluated_sum():
     pts = [[0, 0, 0], [6, 0, 0], [0, 6, 0], [1, 1, 4], [2, 2, -4], [1, 1, 0], [2, 1, 1]]
     vals = np.array([0, 0, 0, 0, 0, 1.0, 0.3])
@@ -180,9 +200,9 @@ def test_checker_detects_an_inverted_tet():
 
 # ---------------------------------------------------------------- random sequences, checked after every step
 
-def _run_checked(points, values, exact, order, fixed_tets, criterion="rms", swap=True):
+def _run_checked(points, values, exact, order, fixed_tets, criterion="rms", swap=True, boundary_flips=False):
     ijk = np.asarray(points, np.int64) if exact else None
-    tm = TetMesh(np.asarray(points, float), values, ijk, criterion=criterion)
+    tm = TetMesh(np.asarray(points, float), values, ijk, criterion=criterion, boundary_flips=boundary_flips)
     tm.start(fixed_tets)
     hull_vol = None
     check_mesh(tm, hull_volume=hull_vol)
@@ -200,8 +220,10 @@ def _run_checked(points, values, exact, order, fixed_tets, criterion="rms", swap
 
 
 @pytest.mark.parametrize("seed", range(3))
-@pytest.mark.parametrize("criterion", ["rms", "max", "sse"])
+@pytest.mark.parametrize("criterion", ["rms", "max", "sse", "sse+2-2"])
 def test_random_order_on_a_grid_checked_after_every_operation(seed, criterion):
+    bflips = criterion.endswith("+2-2")
+    criterion = criterion.replace("+2-2", "")
     rng = np.random.default_rng(seed)
     n = 3
     idx = np.arange(n + 1)
@@ -210,7 +232,7 @@ def test_random_order_on_a_grid_checked_after_every_operation(seed, criterion):
     fixed = box_tetrahedra((n + 1,) * 3)
     corners = np.unique(fixed)
     order = rng.permutation(np.setdiff1d(np.arange(len(ijk)), corners))
-    tm, r = _run_checked(ijk, vals, True, order, fixed, criterion)
+    tm, r = _run_checked(ijk, vals, True, order, fixed, criterion, boundary_flips=bflips)
     # every point selected: the interpolant reproduces the data
     assert np.max(np.abs(r)) < 1e-12
     assert sum(tm.cases.values()) == len(order)

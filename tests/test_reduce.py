@@ -94,7 +94,7 @@ def test_interior_candidates_never_select_boundary_points():
     {"criterion": "max"}, {"criterion": "sse"}, {"tie_order": "reverse"}, {"tie_order": "random", "seed": 3},
     {"tie_order": "centre"}, {"final_pass": True}, {"first_improving": True}, {"boundary_diagonals": "mirrored"},
     {"own_vertices": False}, {"curvature": "local-frame"}, {"ranking": "ascending"}, {"ranking": "random"},
-    {"ranking": "analytic"},
+    {"ranking": "analytic"}, {"boundary_flips": True}, {"method": "greedy"}, {"method": "greedy", "greedy_key": "sse"},
 ])
 def test_every_option_gives_a_valid_mesh(opts):
     r = trivsel.reduce(4, n=5, fractions=[0.3, 0.15], check=check_mesh, **opts)

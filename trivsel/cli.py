@@ -47,6 +47,9 @@ def _add_option_args(p):
     g.add_argument("--first-improving", action="store_true", help=OPTION_DOCS["first_improving"])
     g.add_argument("--curvature", default=DEFAULTS["curvature"], choices=["direct", "local-frame"],
                    help=OPTION_DOCS["curvature"])
+    g.add_argument("--boundary-flips", dest="boundary_flips", action="store_true", default=None,
+                   help="also 2-2 flip edges between coplanar hull faces (default: on for greedy, off for paper)")
+    g.add_argument("--no-boundary-flips", dest="boundary_flips", action="store_false")
     g.add_argument("--neighbourhood", default=DEFAULTS["neighbourhood"], choices=["kuhn", "two-ring", "box"],
                    help=OPTION_DOCS["neighbourhood"])
     g.add_argument("--ranking", default=DEFAULTS["ranking"], choices=["curvature", "ascending", "random", "analytic"],
@@ -118,7 +121,7 @@ def _cmd_reduce(a):
                     own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
                     rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
-                    neighbourhood=a.neighbourhood,
+                    neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips,
                     seed=a.seed, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()

@@ -40,9 +40,10 @@ C_HW, C_NFREE, C_POOLTOP, C_NALIVE, C_STAMP, C_ERROR = 0, 1, 2, 3, 4, 5
 C_FLIP23, C_FLIP32, C_FLIP44, C_NVERT, C_ABOVE, C_OSTAMP = 6, 7, 8, 9, 10, 11
 C_CASE1, C_CASE2, C_CASE3, C_ROUNDCAP = 12, 13, 14, 15
 C_HEAPN = 16
+C_FLIP22 = 17
 
 # float options
-O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS, O_GREEDY, O_GKEY = range(10)
+O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS, O_GREEDY, O_GKEY, O_BFLIP = range(11)
 
 CRITERIA = {"rms": 0, "max": 1, "sse": 2}
 
@@ -722,6 +723,65 @@ def edge_ring(S, t, a, b, old, ring):
 
 
 @njit(cache=True)
+def edge_ring_open(S, t, a, b, old, ring):
+    """Tets around a hull edge (a, b): an open ring from one hull face to the other.
+
+    Fills old[:k] and ring[:k + 1] (tet old[j] = {a, b, ring[j], ring[j+1]}, ordered
+    as in :func:`edge_ring`) and returns k, or -1 if the edge is interior or the
+    ring is longer than old.shape[0].
+    """
+    I_ = S[_IC]
+    P_ = S[_P]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    cap = old.shape[0]
+    x = -1
+    y = -1
+    for j in range(4):
+        v = tets[t, j]
+        if v != a and v != b:
+            if x < 0:
+                x = v
+            else:
+                y = v
+    if _sign(I_, P_, ui_, a, b, x, y) < 0:
+        x, y = y, x
+    # walk backwards (across the face (a, b, x)) to the first tet of the open ring
+    cur = t
+    steps = 0
+    while True:
+        j = _other_index(tets, cur, a, b, x)  # local index of y
+        prv = nbr[cur, j]
+        if prv < 0:
+            break
+        if prv == t or steps > 64:
+            return -1  # closed ring: an interior edge
+        w = tets[prv, _other_index(tets, prv, a, b, x)]
+        y = x
+        x = w
+        cur = prv
+        steps += 1
+    # walk forwards (across the face (a, b, y)) to the other hull face
+    k = 0
+    while True:
+        if k >= cap:
+            return -1
+        old[k] = cur
+        ring[k] = x
+        k += 1
+        j = _other_index(tets, cur, a, b, y)
+        nxt = nbr[cur, j]
+        if nxt < 0:
+            ring[k] = y
+            return k
+        z = tets[nxt, _other_index(tets, nxt, a, b, y)]
+        x = y
+        y = z
+        cur = nxt
+
+
+@njit(cache=True)
 def quads32(a, b, ring, newq):
     """Configuration 1 seen as three tets around edge (a, b) -> two tets (Fig. 2, right to left).
 
@@ -816,10 +876,15 @@ def swap(S, seed, nseed, with_neighbours):
                 if u >= 0:
                     O, no = _push_unique(O, no, u, om, st)
     old = np.empty(4, np.int64)
-    ring = np.empty(4, np.int64)
+    ring = np.empty(5, np.int64)
+    old2 = np.empty(2, np.int64)
     newq = np.empty((4, 4), np.int64)
     best_old = np.empty(4, np.int64)
     best_new = np.empty((4, 4), np.int64)
+    bflip = fopt[O_BFLIP] > 0.0
+    I_ = S[_IC]
+    P_ = S[_P]
+    ui_ = fopt[O_USEINT] > 0.0
     nflips = 0
     for rnd in range(maxrounds):
         best_gain = 0.0
@@ -858,6 +923,31 @@ def swap(S, seed, nseed, with_neighbours):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
                 k = edge_ring(S, t, a, b, old, ring)
+                if k < 0 and bflip:
+                    # a hull edge between two coplanar hull faces, two tets around it:
+                    # the 2-2 flip to the other diagonal of the planar quad (a, r0, b, r2)
+                    k2 = edge_ring_open(S, t, a, b, old2, ring)
+                    if k2 == 2 and _sign(I_, P_, ui_, a, b, ring[0], ring[2]) == 0:
+                        if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
+                            continue
+                        quads32(a, b, ring, newq)
+                        if not _positive(S, newq, 2):
+                            continue
+                        old[0] = old2[0]
+                        old[1] = old2[1]
+                        before, after = _evaluate(S, old, 2, newq, 2)
+                        gain = before - after
+                        if gain > reltol * before + abstol and gain > best_gain:
+                            best_gain = gain
+                            best_kind = 3
+                            best_nold = 2
+                            best_nnew = 2
+                            best_old[:2] = old[:2]
+                            best_new[:2] = newq[:2]
+                            if first:
+                                done = True
+                                break
+                    continue
                 if k != 3 and k != 4:
                     continue
                 # evaluate each edge once: from its smallest tet id that is in O
@@ -895,10 +985,13 @@ def swap(S, seed, nseed, with_neighbours):
                 break
         if best_kind < 0:
             break
-        ids = _replace(S, best_old, best_nold, best_new, best_nnew)
+        ids = _replace(S, best_old, best_nold, best_new, best_nnew, best_kind == 3)
         if ctr[C_ERROR] != 0:
             return nflips
-        ctr[C_FLIP23 + best_kind] += 1
+        if best_kind == 3:
+            ctr[C_FLIP22] += 1
+        else:
+            ctr[C_FLIP23 + best_kind] += 1
         nflips += 1
         for k in range(ids.shape[0]):
             O, no = _push_unique(O, no, ids[k], om, st)
@@ -1230,7 +1323,8 @@ def point_weights(S, verts, weights):
 
 def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
                abs_tol=None, tol_inf=None, first_improving=False, max_rounds=100000,
-               tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None):
+               tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None,
+               boundary_flips=False):
     """Allocate the flat arrays of an empty mesh over the given original points."""
     P = np.ascontiguousarray(points, dtype=np.float64)
     F = np.ascontiguousarray(values, dtype=np.float64)
@@ -1248,7 +1342,7 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
     fopt = np.array([1.0 if ijk is not None else 0.0, CRITERIA[criterion], 1.0 if own_vertices else 0.0,
                      rel_tol, abs_tol, -1.0 if tol_inf is None else float(tol_inf),
                      1.0 if first_improving else 0.0, float(max_rounds), 1.0 if greedy else 0.0,
-                     1.0 if greedy_key == "sse" else 0.0])
+                     1.0 if greedy_key == "sse" else 0.0, 1.0 if boundary_flips else 0.0])
     if greedy_key not in ("max", "sse"):
         raise ValueError(f"unknown greedy key {greedy_key!r}: choose 'max' or 'sse'")
     cand = np.ones(N, np.uint8)
@@ -1395,6 +1489,25 @@ class TetMesh:
             return None
         return self._apply(old, k, newq, nn, force)
 
+    def flip22(self, t, a, b, force=False):
+        """Apply the boundary 2-2 flip of hull edge (a, b) if admissible (and improving unless force)."""
+        old = np.empty(2, np.int64)
+        ring = np.empty(5, np.int64)
+        newq = np.empty((4, 4), np.int64)
+        k = edge_ring_open(self.S, int(t), int(a), int(b), old, ring)
+        if k != 2 or _orient(self.S, int(a), int(b), int(ring[0]), int(ring[2])) != 0:
+            return None
+        quads32(int(a), int(b), ring, newq)
+        if not _positive(self.S, newq, 2):
+            return None
+        if not force:
+            before, after = _evaluate(self.S, old, 2, newq, 2)
+            if not after < before:
+                return None
+        ids = _replace(self.S, old, 2, newq, 2, True)
+        self._raise_on_error()
+        return ids
+
     def evaluate(self, old, newq):
         old = np.asarray(old, np.int64)
         newq = np.asarray(newq, np.int64)
@@ -1464,7 +1577,10 @@ class TetMesh:
     @property
     def flips(self):
         c = self.S[_CTR]
-        return {"2-3": int(c[C_FLIP23]), "3-2": int(c[C_FLIP32]), "4-4": int(c[C_FLIP44])}
+        out = {"2-3": int(c[C_FLIP23]), "3-2": int(c[C_FLIP32]), "4-4": int(c[C_FLIP44])}
+        if self.S[_FOPT][O_BFLIP] > 0.0:
+            out["2-2"] = int(c[C_FLIP22])
+        return out
 
     @property
     def cases(self):

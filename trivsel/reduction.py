@@ -151,8 +151,8 @@ def _check_choice(name, value, choices):
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, method="paper",
            criterion=None, candidates="all", tie_order="index", own_vertices=True, final_pass=False,
            first_improving=False, boundary_diagonals="mirrored", curvature="direct", ranking="curvature", rel_tol=1e-9,
-           quantum=1e-9, seed=0, values="data", greedy_key="max", neighbourhood="kuhn", check=None,
-           progress=None):
+           quantum=1e-9, seed=0, values="data", greedy_key="max", neighbourhood="kuhn", boundary_flips=None,
+           check=None, progress=None):
     """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
 
     Parameters
@@ -174,6 +174,11 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         1995 lifted to 3-D): repeatedly insert the candidate with the largest
         residual |f - L|, with the same insertion and swapping; curvature and
         ranking options do not apply.
+    boundary_flips : bool, optional
+        Also flip an edge between two coplanar hull faces to the other diagonal of
+        their planar quadrilateral (2-2 flip), so the boundary's triangulation
+        adapts to the data too.  Not in the paper (its configurations 1 and 2 are
+        interior); default False for ``paper``, True for ``greedy`` (measured: README).
     neighbourhood : {"kuhn", "two-ring", "box"}
         Points of the curvature fit (section 2): edge neighbours in the initial
         triangulation (widened to the 2-ring where rank-deficient), always the
@@ -209,6 +214,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     _check_choice("method", method, ("paper", "greedy"))
     if criterion is None:  # measured best per method (README, "options")
         criterion = "sse" if method == "greedy" else "rms"
+    if boundary_flips is None:
+        boundary_flips = method == "greedy"
     _check_choice("criterion", criterion, tuple(_mesh.CRITERIA))
     _check_choice("candidate set", candidates, ("all", "interior"))
     _check_choice("tie order", tie_order, TIE_ORDERS)
@@ -240,7 +247,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                    own_vertices=bool(own_vertices), final_pass=bool(final_pass),
                    first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
                    curvature=curvature, ranking=ranking, greedy_key=greedy_key,
-                   neighbourhood=neighbourhood, rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
+                   neighbourhood=neighbourhood, boundary_flips=bool(boundary_flips), rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
                    fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values=values_modes)
 
     # --- fixed points and initial triangulation of all points (section 3)
@@ -330,7 +337,8 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
     tm = _mesh.TetMesh(data.points, data.values, data.ijk, criterion=options["criterion"],
                        own_vertices=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
-                       pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order)
+                       pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order,
+                       boundary_flips=options["boundary_flips"])
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
