@@ -157,3 +157,23 @@ def test_compare_command(tmp_path):
     df.to_csv(tmp_path / "moved.csv", index=False)
     p = _run_cli("compare", str(tmp_path / "moved.csv"), str(golden), "--rtol", "1e-3")
     assert p.returncode == 1 and "E_rms" in p.stdout
+
+
+def test_progress_line_on_request_and_quiet_in_logs(tmp_path):
+    args = ["reduce", "--function", "4", "--n", "8", "--fractions", "0.3", "0.1"]
+    p = _run_cli(*args, "--out", str(tmp_path / "a"), "--progress", "always")
+    lines = [x for x in p.stderr.replace("\r", "\n").splitlines() if "points/s" in x]
+    done = [int(x.split("]")[1].split("/")[0]) for x in lines]
+    assert len(lines) > 10 and done == sorted(done) and done[-1] == 219  # 30 % of 729, rounded half up
+    quiet = _run_cli(*args, "--out", str(tmp_path / "b"))  # stderr is a pipe here, as in workflow logs
+    assert "points/s" not in quiet.stderr and quiet.returncode == 0
+
+
+def test_reduce_progress_callback_reports_current_errors():
+    import trivsel
+
+    seen = []
+    r = trivsel.reduce(2, n=6, fractions=[0.4], progress=lambda *a: seen.append(a))
+    assert seen[-1][0] == seen[-1][1] == r.snapshots[-1].n_selected
+    assert seen[-1][2] == pytest.approx(r.snapshots[-1].errors["E_rms"], rel=1e-9)
+    assert seen[-1][3] == pytest.approx(r.snapshots[-1].errors["E_inf"], rel=1e-12)

@@ -79,6 +79,8 @@ def build_parser():
     stop.add_argument("--tol-inf", type=float, help="stop when E_inf <= this")
     r.add_argument("--out", required=True, help="output folder (errors.csv, mesh_<fraction>.vtu, result.json)")
     r.add_argument("--check", action="store_true", help="run the mesh-validity checker at every snapshot (slow)")
+    r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",
+                   help="progress line on stderr: 'auto' shows it only on a terminal (quiet in workflow logs)")
     _add_option_args(r)
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
@@ -95,6 +97,18 @@ def _version():
     from . import __version__
 
     return f"trivsel {__version__}"
+
+
+def _progress_line(done, total, e_rms, e_inf, seconds):
+    """One self-overwriting status line: bar, points, current errors, rate."""
+    width = 24
+    frac = done / total if total else 1.0
+    bar = "#" * int(round(width * frac))
+    rate = done / seconds if seconds > 0 else 0.0
+    end = "\n" if done >= total else ""
+    sys.stderr.write(f"\r[{bar:<{width}}] {done}/{total} points  E_rms {e_rms:.4g}  E_inf {e_inf:.4g}  "
+                     f"{rate:.0f} points/s{end}")
+    sys.stderr.flush()
 
 
 def _cmd_reduce(a):
@@ -116,7 +130,8 @@ def _cmd_reduce(a):
 
         check = check_mesh
     criterion = a.criterion or ("sse" if a.method == "greedy" else "rms")
-    result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
+    show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
+    result = reduce(data, progress=_progress_line if show else None, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
                     method=a.method, criterion=criterion, candidates=a.candidates, tie_order=a.tie_order,
                     own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,

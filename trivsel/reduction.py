@@ -198,6 +198,10 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     check : callable, optional
         Called as ``check(mesh)`` after the first insertion and at every snapshot
         (tests pass :func:`trivsel.check.check_mesh`).
+    progress : callable, optional
+        Called about 200 times during the run as ``progress(n_selected, n_target,
+        e_rms, e_inf, seconds)`` with the current E_RMS and E_inf over all points
+        (the CLI shows it as a progress line on a terminal).
 
     Returns
     -------
@@ -356,15 +360,13 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
     if (tol_rms is not None or tol_inf is not None) and tolerance_met():
         reached_tol = True
     inserted = []  # greedy: the points in the order they were chosen
+    last = targets[-1] - n_fixed
+    # the compiled loop runs in chunks so that a progress display can update
+    step = max(1, last // 200) if progress is not None else max(last, 1)
     for target in targets:
         need = target - n_fixed
-        if greedy and pos < need and not reached_tol:
-            log = tm.run_greedy(target, stop_tol)
-            inserted.extend(log.tolist())
-            reached_tol = len(log) < need - pos
-            pos += len(log)
-        elif pos < need and not reached_tol:
-            if pos == 0:
+        if pos < need and not reached_tol:
+            if not greedy and pos == 0:
                 p = order[0]
                 ids = tm.cone(p)  # join the first point to every boundary triangle
                 if len(ids) == 0:  # not strictly inside: insert into the fixed points' mesh
@@ -373,14 +375,25 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
                 pos = 1
                 if check is not None:
                     check(tm)
-            if pos < need:
-                new_pos = tm.run(order, pos, need, stop_tol)
-                reached_tol = new_pos < need or (tol_rms is None and tol_inf is None and False)
-                if tol_rms is not None or tol_inf is not None:
-                    reached_tol = reached_tol or tolerance_met()
+            while pos < need:
+                stop = min(need, pos + step)
+                if greedy:
+                    log = tm.run_greedy(n_fixed + stop, stop_tol)
+                    inserted.extend(log.tolist())
+                    new_pos = pos + len(log)
+                else:
+                    new_pos = tm.run(order, pos, stop, stop_tol)
+                stalled = new_pos < stop  # tolerance met (or, greedy, nothing left to improve)
                 pos = new_pos
-            if progress is not None:
-                progress(n_fixed + pos, N)
+                if progress is not None:
+                    resid = tm.S[_mesh._RESID]
+                    progress(n_fixed + pos, n_fixed + last, float(np.sqrt(max(tm.S[_mesh._ACC][0], 0.0) / N)),
+                             float(np.max(np.abs(resid))), time.perf_counter() - t_start)
+                if stalled:
+                    reached_tol = True
+                    break
+            if tol_rms is not None or tol_inf is not None:
+                reached_tol = reached_tol or tolerance_met()
         te = time.perf_counter()
         snap_mesh = tm
         if options["final_pass"]:
