@@ -674,22 +674,9 @@ def config23(S, t, i, old, newq):
 
 
 @njit(cache=True)
-def edge_ring(S, t, a, b, old, ring):
-    """Tets around edge (a, b) starting at t, and the ring of opposite vertices.
-
-    Walks face to face around the edge.  Fills old[:k] and ring[:k] ordered so that
-    orient3d(a, b, ring[j], ring[j+1]) > 0 and tet old[j] = {a, b, ring[j], ring[j+1]}.
-    Returns k for a closed ring (interior edge) of at most old.shape[0] tets, or -1
-    for an edge on the hull or a longer ring.
-    """
-    I_ = S[_IC]
-    P_ = S[_P]
-    F_ = S[_F]
-    ui_ = S[_FOPT][O_USEINT] > 0.0
+def _edge_opposite(S, t, a, b):
+    """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0."""
     tets = S[_TETS]
-    nbr = S[_NBR]
-    cap = old.shape[0]
-    # the two other vertices of t
     x = -1
     y = -1
     for j in range(4):
@@ -699,8 +686,24 @@ def edge_ring(S, t, a, b, old, ring):
                 x = v
             else:
                 y = v
-    if _sign(I_, P_, ui_, a, b, x, y) < 0:
+    if _sign(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, x, y) < 0:
         x, y = y, x
+    return x, y
+
+
+@njit(cache=True)
+def edge_ring(S, t, a, b, old, ring):
+    """Tets around edge (a, b) starting at t, and the ring of opposite vertices.
+
+    Walks face to face around the edge.  Fills old[:k] and ring[:k] ordered so that
+    orient3d(a, b, ring[j], ring[j+1]) > 0 and tet old[j] = {a, b, ring[j], ring[j+1]}.
+    Returns k for a closed ring (interior edge) of at most old.shape[0] tets, or -1
+    for an edge on the hull or a longer ring.
+    """
+    tets = S[_TETS]
+    nbr = S[_NBR]
+    cap = old.shape[0]
+    x, y = _edge_opposite(S, t, a, b)
     # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
     k = 0
     cur = t
@@ -730,23 +733,10 @@ def edge_ring_open(S, t, a, b, old, ring):
     as in :func:`edge_ring`) and returns k, or -1 if the edge is interior or the
     ring is longer than old.shape[0].
     """
-    I_ = S[_IC]
-    P_ = S[_P]
-    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     nbr = S[_NBR]
     cap = old.shape[0]
-    x = -1
-    y = -1
-    for j in range(4):
-        v = tets[t, j]
-        if v != a and v != b:
-            if x < 0:
-                x = v
-            else:
-                y = v
-    if _sign(I_, P_, ui_, a, b, x, y) < 0:
-        x, y = y, x
+    x, y = _edge_opposite(S, t, a, b)
     # walk backwards (across the face (a, b, x)) to the first tet of the open ring
     cur = t
     steps = 0

@@ -25,8 +25,9 @@ _O3D_ERRBOUND = (7.0 + 56.0 * _EPS) * _EPS
 
 
 @njit(cache=True, inline="always")
-def orient3d_int(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
-    """Exact ``det[b - a, c - a, d - a]`` on int64 coordinates (returned as int64)."""
+def orient3d_value(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
+    """``det[b - a, c - a, d - a]``: exact on int64 coordinates (numba compiles an int64
+    version), the plain float determinant on doubles (approximate; for weights)."""
     ux = bx - ax
     uy = by - ay
     uz = bz - az
@@ -39,19 +40,10 @@ def orient3d_int(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     return ux * (vy * wz - vz * wy) - uy * (vx * wz - vz * wx) + uz * (vx * wy - vy * wx)
 
 
-@njit(cache=True, inline="always")
-def orient3d_float(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
-    """Float ``det[b - a, c - a, d - a]`` (approximate value, for interpolation weights)."""
-    ux = bx - ax
-    uy = by - ay
-    uz = bz - az
-    vx = cx - ax
-    vy = cy - ay
-    vz = cz - az
-    wx = dx - ax
-    wy = dy - ay
-    wz = dz - az
-    return ux * (vy * wz - vz * wy) - uy * (vx * wz - vz * wx) + uz * (vx * wy - vy * wx)
+#: exact integer orientation (int64 coordinates) and float determinant (doubles):
+#: one generic function, specialised by numba for each argument type
+orient3d_int = orient3d_value
+orient3d_float = orient3d_value
 
 
 # --- expansion arithmetic (Shewchuk 1997), used only when the filter fails -------
