@@ -673,10 +673,13 @@ def config23(S, t, i, old, newq):
     return True
 
 
-@njit(cache=True)
-def _edge_opposite(S, t, a, b):
-    """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0."""
-    tets = S[_TETS]
+@njit(cache=True, inline="always")
+def _edge_opposite(tets, I, P, ui, t, a, b):
+    """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0.
+
+    Takes arrays and is inlined: it runs for every edge of every candidate tet, and a
+    call that pulled the arrays out of the state tuple doubled the greedy run time.
+    """
     x = -1
     y = -1
     for j in range(4):
@@ -686,7 +689,7 @@ def _edge_opposite(S, t, a, b):
                 x = v
             else:
                 y = v
-    if _sign(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, x, y) < 0:
+    if _sign(I, P, ui, a, b, x, y) < 0:
         x, y = y, x
     return x, y
 
@@ -697,19 +700,19 @@ def edge_ring(S, t, a, b, old, ring):
 
     Walks face to face around the edge.  Fills old[:k] and ring[:k] ordered so that
     orient3d(a, b, ring[j], ring[j+1]) > 0 and tet old[j] = {a, b, ring[j], ring[j+1]}.
-    Returns k for a closed ring (interior edge) of at most old.shape[0] tets, or -1
-    for an edge on the hull or a longer ring.
+    Returns k for a closed ring (interior edge) of at most old.shape[0] tets, -1
+    for an edge on the hull, or -2 for a longer ring.
     """
     tets = S[_TETS]
     nbr = S[_NBR]
     cap = old.shape[0]
-    x, y = _edge_opposite(S, t, a, b)
+    x, y = _edge_opposite(tets, S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b)
     # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
     k = 0
     cur = t
     while True:
         if k >= cap:
-            return -1
+            return -2
         old[k] = cur
         ring[k] = x
         k += 1
@@ -736,7 +739,7 @@ def edge_ring_open(S, t, a, b, old, ring):
     tets = S[_TETS]
     nbr = S[_NBR]
     cap = old.shape[0]
-    x, y = _edge_opposite(S, t, a, b)
+    x, y = _edge_opposite(tets, S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b)
     # walk backwards (across the face (a, b, x)) to the first tet of the open ring
     cur = t
     steps = 0
@@ -828,6 +831,30 @@ def _push_unique(buf, n, v, om, stamp):
 
 
 @njit(cache=True)
+def _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol):
+    """Gain of the boundary 2-2 flip of hull edge (a, b), or 0 if not admissible or not
+    improving enough.  A hull edge between two coplanar hull faces with two tets around
+    it is flipped to the other diagonal of the planar quad (a, r0, b, r2).  Fills
+    old[:2] and newq[:2]."""
+    old2 = np.empty(2, np.int64)
+    k2 = edge_ring_open(S, t, a, b, old2, ring)
+    if k2 != 2 or _sign(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, ring[0], ring[2]) != 0:
+        return 0.0
+    if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
+        return 0.0  # evaluated from its smaller tet
+    quads32(a, b, ring, newq)
+    if not _positive(S, newq, 2):
+        return 0.0
+    old[0] = old2[0]
+    old[1] = old2[1]
+    before, after = _evaluate(S, old, 2, newq, 2)
+    gain = before - after
+    if gain > reltol * before + abstol:
+        return gain
+    return 0.0
+
+
+@njit(cache=True)
 def swap(S, seed, nseed, with_neighbours):
     """Data-dependent swapping after an insertion (section 4, steps i-iv).
 
@@ -867,14 +894,10 @@ def swap(S, seed, nseed, with_neighbours):
                     O, no = _push_unique(O, no, u, om, st)
     old = np.empty(4, np.int64)
     ring = np.empty(5, np.int64)
-    old2 = np.empty(2, np.int64)
     newq = np.empty((4, 4), np.int64)
     best_old = np.empty(4, np.int64)
     best_new = np.empty((4, 4), np.int64)
     bflip = fopt[O_BFLIP] > 0.0
-    I_ = S[_IC]
-    P_ = S[_P]
-    ui_ = fopt[O_USEINT] > 0.0
     nflips = 0
     for rnd in range(maxrounds):
         best_gain = 0.0
@@ -913,30 +936,18 @@ def swap(S, seed, nseed, with_neighbours):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
                 k = edge_ring(S, t, a, b, old, ring)
-                if k < 0 and bflip:
-                    # a hull edge between two coplanar hull faces, two tets around it:
-                    # the 2-2 flip to the other diagonal of the planar quad (a, r0, b, r2)
-                    k2 = edge_ring_open(S, t, a, b, old2, ring)
-                    if k2 == 2 and _sign(I_, P_, ui_, a, b, ring[0], ring[2]) == 0:
-                        if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
-                            continue
-                        quads32(a, b, ring, newq)
-                        if not _positive(S, newq, 2):
-                            continue
-                        old[0] = old2[0]
-                        old[1] = old2[1]
-                        before, after = _evaluate(S, old, 2, newq, 2)
-                        gain = before - after
-                        if gain > reltol * before + abstol and gain > best_gain:
-                            best_gain = gain
-                            best_kind = 3
-                            best_nold = 2
-                            best_nnew = 2
-                            best_old[:2] = old[:2]
-                            best_new[:2] = newq[:2]
-                            if first:
-                                done = True
-                                break
+                if k == -1 and bflip:
+                    g = _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol)
+                    if g > best_gain:
+                        best_gain = g
+                        best_kind = 3
+                        best_nold = 2
+                        best_nnew = 2
+                        best_old[:2] = old[:2]
+                        best_new[:2] = newq[:2]
+                        if first:
+                            done = True
+                            break
                     continue
                 if k != 3 and k != 4:
                     continue
