@@ -7,6 +7,7 @@
 # Stages (workflow/rules/): data -> reduce -> evaluate -> figures -> report.
 # Optional stage methods (config/methods.yaml): every method at matched vertex counts.
 # Optional stage ablation (config/ablation.yaml): the open choices against Table 1.
+# Optional stage scale (config/scale.yaml): time and memory against points, trivsel vs VTK.
 # Results layout: results/README.md.
 
 from snakemake.utils import min_version, validate
@@ -31,6 +32,7 @@ include: "workflow/rules/figures.smk"
 include: "workflow/rules/report.smk"
 include: "workflow/rules/methods.smk"
 include: "workflow/rules/ablation.smk"
+include: "workflow/rules/scale.smk"
 
 
 # Jobs that only collect or copy files run on the submitting host, not as cluster jobs.
@@ -39,10 +41,13 @@ localrules:
     publish,
     methods_table,
     ablation_report,
+    scale_table,
+    scale_figure,
 
 
 rule all:
     input:
         all_targets(),
         ABLATION_TARGETS,
+        SCALE_TARGETS,
     default_target: True
