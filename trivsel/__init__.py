@@ -18,7 +18,7 @@ __version__ = "0.1.0"
 
 
 def reduce(*args, **kwargs):
-    """Select points and build the data-dependent mesh; see :func:`trivsel.reduce.reduce`."""
+    """Select points and build the data-dependent mesh; see :func:`trivsel.reduction.reduce`."""
     from .reduction import reduce as _reduce
 
     return _reduce(*args, **kwargs)
