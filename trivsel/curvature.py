@@ -323,6 +323,17 @@ def _coef_to_derivatives(coef, scale):
     return grad, hess
 
 
+def _points_values(points, values):
+    """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
+    p = np.asarray(points, dtype=float)
+    f = np.asarray(values, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"points must have shape (N, 3), got {p.shape}")
+    if f.shape != (p.shape[0],):
+        raise InputError(f"values must have shape ({p.shape[0]},), got {f.shape}")
+    return p, f
+
+
 def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
                   chunk_rows=300_000, chunk_points=20_000, return_info=False):
     """Local least-squares quadratics: gradient and Hessian at every data point.
@@ -388,13 +399,8 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         True where the 1-ring fit was rank deficient and a wider ring was used.
     info : dict, only if ``return_info``
     """
-    p = np.asarray(points, dtype=float)
-    f = np.asarray(values, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"points must have shape (N, 3), got {p.shape}")
+    p, f = _points_values(points, values)
     npts = p.shape[0]
-    if f.shape != (npts,):
-        raise InputError(f"values must have shape ({npts},), got {f.shape}")
     indptr = np.asarray(indptr, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
     if indptr.shape != (npts + 1,):
@@ -635,13 +641,8 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
     """
     from .triangulation import delaunay_tetrahedra, edge_neighbours
 
-    p = np.asarray(points, dtype=float)
-    f = np.asarray(values, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"points must have shape (N, 3), got {p.shape}")
+    p, f = _points_values(points, values)
     npts = p.shape[0]
-    if f.shape != (npts,):
-        raise InputError(f"values must have shape ({npts},), got {f.shape}")
     if max_ring < 1:
         raise ValueError(f"max_ring must be >= 1, got {max_ring}")
     if tets is None:
