@@ -296,7 +296,7 @@ def _link(S, t, i, u):
 # ----------------------------------------------------------------------------- the primitive
 
 @njit(cache=True)
-def _replace(S, old, nold, newq, nnew, new_hull=False):
+def _replace(S, old, nold, newq, nnew, new_hull):
     """Replace tets ``old[:nold]`` by the quadruples ``newq[:nnew]`` (same region).
 
     Links the new tets to each other and to the outside neighbours of the old
@@ -630,7 +630,7 @@ def cone_from_hull(S, p):
                 k += 1
     if not _positive(S, newq, nh):
         return old[:0]
-    ids = _replace(S, old, nold, newq, nh)
+    ids = _replace(S, old, nold, newq, nh, False)
     S[_ISVERT][p] = 1
     S[_CTR][C_NVERT] += 1
     S[_CTR][C_CASE1] += 1
@@ -1327,10 +1327,11 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
                tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None,
                boundary_flips=False):
     """Allocate the flat arrays of an empty mesh over the given original points."""
-    P = np.ascontiguousarray(points, dtype=np.float64)
-    F = np.ascontiguousarray(values, dtype=np.float64)
+    # C-contiguous and writable, so that every state has the same numba type
+    P = np.require(points, np.float64, ["C", "W"])
+    F = np.require(values, np.float64, ["C", "W"])
     N = F.shape[0]
-    IC = np.ascontiguousarray(ijk, dtype=np.int64) if ijk is not None else np.zeros((N, 3), np.int64)
+    IC = np.require(ijk, np.int64, ["C", "W"]) if ijk is not None else np.zeros((N, 3), np.int64)
     cap = int(tet_capacity or (8 * N + 1024))
     pcap = int(pool_capacity or (24 * N + 4096))
     frange = float(F.max() - F.min()) if N else 0.0
@@ -1358,7 +1359,54 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
          np.zeros(N, np.int32), np.zeros(24, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64),
          np.full(cap, -1, np.int32), np.zeros(cap), np.zeros(cap, np.int64),
          np.zeros(2 * cap), np.zeros(2 * cap, np.int64), np.zeros(2 * cap, np.int64), cand)
+    _pin_signatures(S)
     return S
+
+
+_PINNED = set()  # state types the helpers are compiled for
+
+
+def _pin_signatures(S):
+    """Compile each internal helper for one argument signature (int64 indices) and
+    forbid further variants.
+
+    Without this, numba compiles a helper once per combination of argument types
+    it meets while typing its callers: int32 read from ``tets`` against int64
+    loop indices, ``Literal[int](2)`` against ``int64``, ``Literal[bool](True)``
+    against ``bool``.  That was 7 copies of :func:`_replace`, 12 of :func:`_sign`,
+    2 of :func:`swap` and so on: more than half of the one-time compilation.
+    With one pinned signature, numba converts the arguments at the call instead.
+    Runs in :func:`make_state` (once per state type), so ``import trivsel`` stays
+    cheap; each signature comes from the on-disk cache after the first run.
+    """
+    from numba import typeof, types as nt
+
+    if not hasattr(swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: plain Python functions
+        return
+    st = typeof(S)
+    if st in _PINNED:
+        return
+    i8, b1, f8 = nt.int64, nt.boolean, nt.float64
+    v8, m8, m4 = nt.int64[::1], nt.int64[:, ::1], nt.int32[:, ::1]
+    f82 = nt.float64[:, ::1]
+    sigs = [
+        (_sign, (m8, f82, b1, i8, i8, i8, i8)),
+        (_vol, (m8, f82, b1, i8, i8, i8, i8)),
+        (_crit, (f8, f8, f8, i8)),
+        (_other_index, (m4, i8, i8, i8, i8)),
+        (_push_unique, (v8, i8, i8, v8, i8)),
+        (_gather, (st, v8, i8)),
+        (_positive, (st, m8, i8)),
+        (_evaluate, (st, v8, i8, m8, i8)),
+        (_replace, (st, v8, i8, m8, i8, b1)),
+        (_set_best, (st, i8, i8, f8)),
+        (swap, (st, v8, i8, b1)),
+    ]
+    for fn, sig in sigs:
+        fn.disable_compile(False)
+        fn.compile(sig)
+        fn.disable_compile(True)
+    _PINNED.add(st)
 
 
 def face_neighbours(tets):
@@ -1519,7 +1567,7 @@ class TetMesh:
             before, after = _evaluate(self.S, old, nold, newq, nn)
             if not after < before:
                 return None
-        ids = _replace(self.S, old, nold, newq, nn)
+        ids = _replace(self.S, old, nold, newq, nn, False)
         self._raise_on_error()
         return ids
 
