@@ -117,7 +117,8 @@ def snapshot_to_pyvista(result, snapshot):
     """The snapshot's mesh as a pyvista UnstructuredGrid over the selected points.
 
     Point data: ``value`` (the selected points' own values), ``original_index``,
-    ``curvature`` (K of eq. 10) and, with ``values="fit"``, ``fitted_value``.
+    ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
+    and, with ``values="fit"``, ``fitted_value``.
     """
     import pyvista as pv
 
@@ -133,7 +134,8 @@ def snapshot_to_pyvista(result, snapshot):
         fitted[np.searchsorted(sel, snapshot.fit["vertices"])] = snapshot.fit["values"]
         grid.point_data["fitted_value"] = fitted
     grid.point_data["original_index"] = sel
-    grid.point_data["curvature"] = result.curvature[sel]
+    if result.curvature is not None:  # greedy does not compute it
+        grid.point_data["curvature"] = result.curvature[sel]
     grid.field_data["fraction"] = np.array([snapshot.fraction])
     return grid
 

@@ -94,8 +94,9 @@ class ReductionResult:
     selected : (m,) int
         Selected point indices in insertion order: fixed points first, then the
         candidates as inserted (``selected[:k]`` is the selection of size k).
-    curvature : (N,) float
-        Absolute curvature K of every point (eq. 10).
+    curvature : (N,) float or None
+        Absolute curvature K of every point (eq. 10); None for ``method="greedy"``,
+        which chooses points by their error and never ranks by curvature.
     order : (M,) int
         All candidates in ranked order.
     snapshots : list of Snapshot
@@ -111,7 +112,7 @@ class ReductionResult:
 
     data: PointData
     selected: np.ndarray
-    curvature: np.ndarray
+    curvature: np.ndarray | None
     order: np.ndarray
     snapshots: list
     options: dict
@@ -263,7 +264,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         _, fixed = hull_triangles(data.points)
         local = delaunay_tetrahedra(data.points[fixed])
         start_tets = fixed[local]
-        all_tets = delaunay_tetrahedra(data.points)
+        all_tets = delaunay_tetrahedra(data.points) if method != "greedy" else None  # curvature's graph
     interior = data.interior_mask()
 
     # --- targets
@@ -281,29 +282,34 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if not targets:  # tolerance only
         targets = [n_max]
 
-    # --- curvature (section 2) and ranking (section 3)
+    # --- curvature (section 2) and ranking (section 3); greedy picks by error, not by rank
     t0 = time.perf_counter()
     from .curvature import absolute_curvature
 
-    if data.is_grid:
+    if method == "greedy":
+        K = None
+        order = cand
+    elif data.is_grid:
         graph = kuhn_edge_neighbours(data.shape)
         if curvature == "local-frame":  # needs the tets for its normals
             all_tets = kuhn_tetrahedra(data.shape)
     else:
         graph = edge_neighbours(all_tets, N)
-    graph = neighbour_graph(*graph, shape=data.shape, kind=neighbourhood)
-    K = absolute_curvature(data.points, data.values, tets=all_tets, neighbours=graph, estimator=curvature)
+    if method != "greedy":
+        graph = neighbour_graph(*graph, shape=data.shape, kind=neighbourhood)
+        K = absolute_curvature(data.points, data.values, tets=all_tets, neighbours=graph, estimator=curvature)
     t_curv = time.perf_counter() - t0
-    key = K
-    if ranking == "ascending":
-        key = -K
-    elif ranking == "random":
-        key = np.random.default_rng(seed).random(N)
-    elif ranking == "analytic":
-        from .curvature import analytic_absolute_curvature
+    if method != "greedy":
+        key = K
+        if ranking == "ascending":
+            key = -K
+        elif ranking == "random":
+            key = np.random.default_rng(seed).random(N)
+        elif ranking == "analytic":
+            from .curvature import analytic_absolute_curvature
 
-        key = analytic_absolute_curvature(data.meta["function"], data.points)
-    order = rank_candidates(key, cand, tie_order=tie_order, points=data.points, seed=seed, quantum=quantum)
+            key = analytic_absolute_curvature(data.meta["function"], data.points)
+        order = rank_candidates(key, cand, tie_order=tie_order, points=data.points, seed=seed, quantum=quantum)
 
     # --- insertion with data-dependent swapping (section 4)
     t1 = time.perf_counter()
