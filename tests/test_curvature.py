@@ -280,6 +280,22 @@ def test_chunking_does_not_change_results():
         np.testing.assert_allclose(a, b, rtol=1e-12, atol=1e-13)
 
 
+@pytest.mark.parametrize("estimator", ["direct", "local-frame"])
+def test_threads_give_identical_results(estimator):
+    data = sample_grid(3, 10)
+    kw = dict(tets=_grid_tets(10), neighbours=_grid_graph(10), estimator=estimator, chunk_points=50)
+    one = absolute_curvature(data.points, data.values, threads=1, **kw)
+    two = absolute_curvature(data.points, data.values, threads=3, **kw)
+    np.testing.assert_array_equal(one, two)
+
+
+@pytest.mark.parametrize("threads", [0, -1, 1.5, True])
+def test_bad_threads_rejected(threads):
+    data = sample_grid(1, 4)
+    with pytest.raises(InputError, match=f"threads must be an integer >= 1, got {threads!r}"):
+        absolute_curvature(data.points, data.values, neighbours=_grid_graph(4), threads=threads)
+
+
 # ---------------------------------------------------------------------------
 # local-frame estimator (Hamann 1994b)
 # ---------------------------------------------------------------------------

@@ -287,3 +287,52 @@ def test_orientation_predicate_int_and_float_agree_on_grid_points():
         exact = int(np.sign(round(np.linalg.det((pts[[b, c, d]] - pts[a]).astype(float)))))
         assert _orient(tmi.S, a, b, c, d) == exact
         assert _orient(tmf.S, a, b, c, d) == exact
+
+
+def _random_mesh_configs(criterion, seed=3):
+    """A Delaunay mesh over random points with random values, and its 2-3 configurations."""
+    from trivsel.mesh import config23
+
+    rng = np.random.default_rng(seed)
+    pts = rng.random((40, 3))
+    tm = TetMesh(pts, rng.random(40), criterion=criterion)
+    tm.start(delaunay_tetrahedra(pts))
+    configs = []
+    for t in tm.live_ids():
+        for i in range(4):
+            old = np.empty(4, np.int64)
+            newq = np.empty((4, 4), np.int64)
+            if config23(tm.S, int(t), i, old, newq):
+                configs.append((old[:2].copy(), newq[:3].copy()))
+    return tm, configs
+
+
+@pytest.mark.parametrize("criterion", ["rms", "max", "sse"])
+def test_evaluation_does_not_depend_on_the_order_of_the_old_tets(criterion):
+    # swap remembers evaluations by configuration, whichever tet it was found from:
+    # the sums must be the same to the last bit (equal gains must stay equal)
+    tm, configs = _random_mesh_configs(criterion)
+    assert len(configs) > 20
+    for old, newq in configs:
+        assert tm.evaluate(old, newq) == tm.evaluate(old[::-1], newq)
+
+
+@pytest.mark.parametrize("criterion", ["rms", "max", "sse"])
+def test_early_stopped_evaluation_decides_like_the_full_one(criterion):
+    from trivsel.mesh import _evaluate
+
+    tm, configs = _random_mesh_configs(criterion)
+    stopped = 0
+    for old, newq in configs:
+        full_b, full_a = _evaluate(tm.S, old, 2, newq, 3, 0.0, -np.inf)
+        for reltol, abstol in [(1e-9, 0.0), (0.0, 1e-3), (0.3, 0.0)]:
+            b, a = _evaluate(tm.S, old, 2, newq, 3, reltol, abstol)
+            thr = reltol * full_b + abstol
+            assert b == full_b
+            assert (b - a > thr) == (full_b - full_a > thr)
+            if b - a > thr:
+                assert a == full_a  # an improving flip is always evaluated in full
+            else:
+                assert a <= full_a
+                stopped += a < full_a
+    assert stopped > 0  # the early stop did happen

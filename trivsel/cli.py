@@ -81,6 +81,9 @@ def build_parser():
     r.add_argument("--check", action="store_true", help="run the mesh-validity checker at every snapshot (slow)")
     r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",
                    help="progress line on stderr: 'auto' shows it only on a terminal (quiet in workflow logs)")
+    r.add_argument("--threads", type=int, default=1,
+                   help="threads for the curvature fits, the stage that parallelises (default 1; the result "
+                        "does not depend on it)")
     _add_option_args(r)
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
@@ -137,7 +140,7 @@ def _cmd_reduce(a):
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
                     rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
                     neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips,
-                    seed=a.seed, check=check)
+                    seed=a.seed, threads=a.threads, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()
     print(df.to_string(index=False, float_format=lambda v: f"{v:.6g}"))

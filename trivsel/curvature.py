@@ -235,23 +235,32 @@ _DIRECT_OUT = (((_N_COEF,), float), ((), float), ((), bool))
 _FRAME_OUT = (((_N_COEF,), float), ((), float), ((), bool), ((), bool))
 
 
-def _fit_rows(block, centres, ptr, idx, chunk_rows, chunk_points, out=_DIRECT_OUT):
+def _fit_rows(block, centres, ptr, idx, chunk_rows, chunk_points, out=_DIRECT_OUT, threads=1):
     """Run ``block(centres, nbr, mask)`` over neighbourhoods given as CSR rows ``(ptr, idx)``.
 
     Neighbourhoods are sorted by size and processed in chunks padded to the
     chunk's largest size, so padding is small and memory is bounded by about
-    ``chunk_rows * 11 * 8`` bytes per array.  ``out`` gives the trailing shape
-    and dtype of each array ``block`` returns.
+    ``chunk_rows * 11 * 8`` bytes per array and thread.  ``out`` gives the
+    trailing shape and dtype of each array ``block`` returns.  With ``threads``
+    > 1 the chunks run on a thread pool (numpy's batched LAPACK and most array
+    operations release the GIL); every chunk writes its own rows, so the result
+    does not depend on ``threads``.
     """
     sizes = np.diff(ptr)
     order = np.argsort(sizes, kind="stable")
     n = centres.size
     results = [np.empty((n,) + shape, dtype=dtype) for shape, dtype in out]
+    chunks = []
     start = 0
     while start < n:
         m = max(int(sizes[order[min(start + chunk_points, n) - 1]]), 1)
         stop = min(start + chunk_points, start + max(chunk_rows // m, 1), n)
         m = max(int(sizes[order[stop - 1]]), 1)  # sizes sorted: last is the largest
+        chunks.append((start, stop, m))
+        start = stop
+
+    def run(chunk):
+        start, stop, m = chunk
         sel = order[start:stop]
         lo, ln = ptr[sel], sizes[sel]
         col = np.arange(m)
@@ -260,8 +269,22 @@ def _fit_rows(block, centres, ptr, idx, chunk_rows, chunk_points, out=_DIRECT_OU
         nbr = np.where(mask, idx[pos] if idx.size else 0, centres[sel][:, None])
         for res, part in zip(results, block(centres[sel], nbr, mask)):
             res[sel] = part
-        start = stop
+
+    if threads > 1 and len(chunks) > 1:
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(min(threads, len(chunks))) as pool:
+            list(pool.map(run, chunks))
+    else:
+        for chunk in chunks:
+            run(chunk)
     return results
+
+
+def _check_threads(threads):
+    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
+        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+    return int(threads)
 
 
 def _widening_fits(npts, indptr, indices, max_ring, fit):
@@ -335,7 +358,7 @@ def _points_values(points, values):
 
 
 def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
-                  chunk_rows=300_000, chunk_points=20_000, return_info=False):
+                  chunk_rows=300_000, chunk_points=20_000, threads=1, return_info=False):
     """Local least-squares quadratics: gradient and Hessian at every data point.
 
     For each point ``x_0`` the trivariate quadratic
@@ -387,6 +410,8 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
     chunk_rows, chunk_points : int
         Memory bounds: at most ``chunk_points`` points and ``chunk_rows`` padded
         design rows per batched solve.
+    threads : int
+        Chunks solved in parallel (the result is the same for any value).
     return_info : bool
         Also return a dict with ``ring`` ((N,) int8, the ring finally used) and
         ``min_norm`` ((N,) bool).
@@ -407,12 +432,14 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         raise InputError(f"indptr must have length N + 1 = {npts + 1}, got {indptr.shape}")
     if max_ring < 1:
         raise ValueError(f"max_ring must be >= 1, got {max_ring}")
+    threads = _check_threads(threads)
 
     def block(centres, nbr, mask):
         return _fit_block(p, f, centres, nbr, mask, rtol)
 
     def fit(todo, ptr, idx):
-        coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points)
+        coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points,
+                                           threads=threads)
         return _coef_to_derivatives(coef, scale), deficient
 
     (grad, hess), ring, min_norm = _widening_fits(npts, indptr, indices, max_ring, fit)
@@ -557,7 +584,7 @@ def _frame_block(points, lifted, normals, centres, nbr, mask, rtol):
 
 def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighting="volume",
                           rtol=1e-8, max_ring=3, chunk_rows=300_000, chunk_points=20_000,
-                          return_info=False):
+                          threads=1, return_info=False):
     """Absolute curvature (eq. 10) by the local-frame method of Hamann (1994b).
 
     Section 2 of Hamann & Chen (1994), "Data point selection for piecewise
@@ -611,7 +638,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
         Edge-neighbour graph (CSR) of ``tets``; built from ``tets`` if omitted.
     weighting : {"volume", "uniform"}
         Averaging of the tetrahedron normals (:func:`vertex_normals`).
-    rtol, max_ring, chunk_rows, chunk_points
+    rtol, max_ring, chunk_rows, chunk_points, threads
         As for :func:`fit_quadratic`.
     return_info : bool
         Also return a dict with ``normal`` ((N, 4)), ``grad`` ((N, 3)) and
@@ -657,6 +684,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
     if indptr.shape != (npts + 1,):
         raise InputError(f"indptr must have length N + 1 = {npts + 1}, got {indptr.shape}")
 
+    threads = _check_threads(threads)
     normals = vertex_normals(p, f, tets, weighting=weighting)
     lifted = np.concatenate([p, f[:, None]], axis=1)
 
@@ -665,7 +693,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
 
     def fit(todo, ptr, idx):
         coef, scale, deficient, frame_def = _fit_rows(block, todo, ptr, idx, chunk_rows,
-                                                      chunk_points, out=_FRAME_OUT)
+                                                      chunk_points, out=_FRAME_OUT, threads=threads)
         grad, hess = _coef_to_derivatives(coef, scale)
         return (grad, hess, frame_def), deficient
 
@@ -714,8 +742,8 @@ def absolute_curvature(points, values, tets=None, neighbours=None, *, estimator=
         the neighbourhoods.  The local-frame estimator still needs ``tets``.
     estimator : {"direct", "local-frame"}
     **fit_options
-        Passed on to :func:`fit_quadratic` (``rtol``, ``max_ring``, chunk sizes)
-        or :func:`local_frame_curvature` (the same, plus ``weighting``).
+        Passed on to :func:`fit_quadratic` (``rtol``, ``max_ring``, chunk sizes,
+        ``threads``) or :func:`local_frame_curvature` (the same, plus ``weighting``).
 
     Returns
     -------

@@ -464,12 +464,20 @@ def _positive(S, newq, nnew):
 
 
 @njit(cache=True)
-def _evaluate(S, old, nold, newq, nnew):
+def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
     """Criterion sums (before, after) of replacing old by newq, without changing the mesh.
 
     For RMS/max criteria these are sums of per-tet errors (eqs. 14-15) as in step
     (iii) of section 4; for SSE the sum of squared residuals over the points of the
     configuration, each counted once (the exact change of the global L2 error).
+
+    ``after`` is a sum of non-negative terms, so its partial sums only grow: as
+    soon as ``before - partial <= reltol * before + abstol`` the flip cannot pass
+    :func:`swap`'s test for an improvement and the evaluation stops, returning
+    the partial sum (a lower bound of ``after`` that decides the same).
+    ``abstol = -inf`` evaluates in full.  (Stopping also when the flip cannot
+    beat the best one found so far in the round was measured slower: such
+    configurations must be evaluated again in the next round.)
     """
     I_ = S[_IC]
     P_ = S[_P]
@@ -477,6 +485,9 @@ def _evaluate(S, old, nold, newq, nnew):
     ui_ = S[_FOPT][O_USEINT] > 0.0
     crit = S[_FOPT][O_CRIT]
     ownvert = S[_FOPT][O_OWNVERT] > 0.0
+    # the old tets in ascending id order: the sums then do not depend on the tet the
+    # configuration was found from, to the last bit (equal gains stay equal)
+    old = np.sort(old[:nold])
     m = _gather(S, old, nold)
     buf = S[_WBUF]
     F = S[_F]
@@ -487,16 +498,22 @@ def _evaluate(S, old, nold, newq, nnew):
         for j in range(m):
             p = buf[j]
             before += resid[p] * resid[p]
+        thr = reltol * before + abstol
+        for j in range(m):
+            p = buf[j]
             for k in range(nnew):
                 inside, nz, val = _locate(I_, P_, F_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3], p)
                 if inside:
                     r = F[p] - val
                     after += r * r
                     break
+            if before - after <= thr:
+                break
         return before, after
     for k in range(nold):
         t = old[k]
         before += _crit(crit, S[_TSSE][t], S[_TMAX][t], S[_TCNT][t])
+    thr = reltol * before + abstol
     for k in range(nnew):
         q0 = newq[k, 0]
         q1 = newq[k, 1]
@@ -515,6 +532,8 @@ def _evaluate(S, old, nold, newq, nnew):
                     mx = abs(r)
                 cnt += 1
         after += _crit(crit, sse, mx, cnt)
+        if before - after <= thr:
+            break
     return before, after
 
 
@@ -847,7 +866,7 @@ def _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol):
         return 0.0
     old[0] = old2[0]
     old[1] = old2[1]
-    before, after = _evaluate(S, old, 2, newq, 2)
+    before, after = _evaluate(S, old, 2, newq, 2, reltol, abstol)
     gain = before - after
     if gain > reltol * before + abstol:
         return gain
@@ -913,13 +932,28 @@ def _cache_grow(hkey, hval):
     n2 = 2 * hkey.shape[0]
     k2 = np.empty((n2, _KEYLEN), np.int64)
     k2[:, 0] = -1
-    v2 = np.empty((n2, 2), np.float64)
+    v2 = np.empty((n2, hval.shape[1]), np.float64)
     for s in range(hkey.shape[0]):
         if hkey[s, 0] != -1:
             s2, _ = _cache_slot(k2, hkey[s])
             k2[s2] = hkey[s]
             v2[s2] = hval[s]
     return k2, v2
+
+
+@njit(cache=True)
+def _cache_store(hkey, hval, hn, slot, key, before, after):
+    """Store an evaluation at the empty ``slot`` (from :func:`_cache_slot`); returns the
+    table (grown when half full) and its count."""
+    if hn >= _CACHE_MAX:
+        return hkey, hval, hn
+    hkey[slot] = key
+    hn += 1
+    hval[slot, 0] = before
+    hval[slot, 1] = after
+    if 2 * hn > hkey.shape[0]:
+        hkey, hval = _cache_grow(hkey, hval)
+    return hkey, hval, hn
 
 
 @njit(cache=True)
@@ -969,7 +1003,7 @@ def swap(S, seed, nseed, with_neighbours):
     tver = S[_TVER]
     hkey = np.empty((256, _KEYLEN), np.int64)  # evaluated configurations (see _config_key)
     hkey[:, 0] = -1
-    hval = np.empty((256, 2), np.float64)
+    hval = np.empty((256, 2), np.float64)  # before, after (see _evaluate)
     hn = 0
     key = np.empty(_KEYLEN, np.int64)
     nflips = 0
@@ -996,13 +1030,8 @@ def swap(S, seed, nseed, with_neighbours):
                 if found:
                     before, after = hval[slot, 0], hval[slot, 1]
                 else:
-                    before, after = _evaluate(S, old, 2, newq, 3)
-                    if hn < _CACHE_MAX:
-                        hkey[slot] = key
-                        hval[slot, 0], hval[slot, 1] = before, after
-                        hn += 1
-                        if 2 * hn > hkey.shape[0]:
-                            hkey, hval = _cache_grow(hkey, hval)
+                    before, after = _evaluate(S, old, 2, newq, 3, reltol, abstol)
+                    hkey, hval, hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                 gain = before - after
                 if gain > reltol * before + abstol and gain > best_gain:
                     best_gain = gain
@@ -1061,13 +1090,8 @@ def swap(S, seed, nseed, with_neighbours):
                     if found:
                         before, after = hval[slot, 0], hval[slot, 1]
                     else:
-                        before, after = _evaluate(S, old, k, newq, nn)
-                        if hn < _CACHE_MAX:
-                            hkey[slot] = key
-                            hval[slot, 0], hval[slot, 1] = before, after
-                            hn += 1
-                            if 2 * hn > hkey.shape[0]:
-                                hkey, hval = _cache_grow(hkey, hval)
+                        before, after = _evaluate(S, old, k, newq, nn, reltol, abstol)
+                        hkey, hval, hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                     gain = before - after
                     if gain > reltol * before + abstol and gain > best_gain:
                         best_gain = gain
@@ -1496,12 +1520,13 @@ def _pin_signatures(S):
         (_push_unique, (v8, i8, i8, v8, i8)),
         (_gather, (st, v8, i8)),
         (_positive, (st, m8, i8)),
-        (_evaluate, (st, v8, i8, m8, i8)),
+        (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
         (_replace, (st, v8, i8, m8, i8, b1)),
         (_set_best, (st, i8, i8, f8)),
         (swap, (st, v8, i8, b1)),
         (_config_key, (v8, i8, i8, i8, v8, i8, v8)),
         (_cache_slot, (m8, v8)),
+        (_cache_store, (m8, f82, i8, i8, v8, f8, f8)),
     ]
     for fn, sig in sigs:
         fn.disable_compile(False)
@@ -1603,7 +1628,7 @@ class TetMesh:
         return ids
 
     def swap(self, ids, with_neighbours=True):
-        ids = np.asarray(ids, np.int64)
+        ids = np.ascontiguousarray(ids, np.int64)
         n = swap(self.S, ids, len(ids), with_neighbours)
         self._raise_on_error()
         return n
@@ -1651,7 +1676,7 @@ class TetMesh:
         if not _positive(self.S, newq, 2):
             return None
         if not force:
-            before, after = _evaluate(self.S, old, 2, newq, 2)
+            before, after = _evaluate(self.S, old, 2, newq, 2, 0.0, -np.inf)
             if not after < before:
                 return None
         ids = _replace(self.S, old, 2, newq, 2, True)
@@ -1659,13 +1684,13 @@ class TetMesh:
         return ids
 
     def evaluate(self, old, newq):
-        old = np.asarray(old, np.int64)
-        newq = np.asarray(newq, np.int64)
-        return _evaluate(self.S, old, len(old), newq, len(newq))
+        old = np.ascontiguousarray(old, np.int64)
+        newq = np.ascontiguousarray(newq, np.int64)
+        return _evaluate(self.S, old, len(old), newq, len(newq), 0.0, -np.inf)
 
     def _apply(self, old, nold, newq, nn, force):
         if not force:
-            before, after = _evaluate(self.S, old, nold, newq, nn)
+            before, after = _evaluate(self.S, old, nold, newq, nn, 0.0, -np.inf)
             if not after < before:
                 return None
         ids = _replace(self.S, old, nold, newq, nn, False)
@@ -1673,7 +1698,7 @@ class TetMesh:
         return ids
 
     def run(self, order, start, stop, tol_rms=-1.0):
-        k = run_insertions(self.S, np.asarray(order, np.int64), int(start), int(stop), float(tol_rms),
+        k = run_insertions(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop), float(tol_rms),
                            float(self.S[_F].shape[0]))
         self._raise_on_error()
         return int(k)

@@ -20,6 +20,7 @@ argv = [
     "--n", str(sm.wildcards.n),
     "--fractions", *[f"{f:g}" for f in sm.params.fractions],
     "--out", outdir,
+    "--threads", str(sm.threads),
     *sm.params.args,
 ]
 print("$ trivsel " + shlex.join(argv), flush=True)
