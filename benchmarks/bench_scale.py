@@ -24,6 +24,7 @@ Usage::
     python benchmarks/bench_scale.py --quick       # 17^3 to 65^3 only (a few minutes)
     python benchmarks/bench_scale.py               # plus greedy on 129^3
     python benchmarks/bench_scale.py --repeats 5
+    python benchmarks/bench_scale.py --quick --threads 2   # curvature fits on 2 threads
 """
 
 from __future__ import annotations
@@ -61,6 +62,8 @@ def main(argv=None):
     ap.add_argument("--function", type=int, default=4)
     ap.add_argument("--fraction", type=float, default=0.1)
     ap.add_argument("--timeout", type=float, default=3600.0, help="seconds before a measurement is killed")
+    ap.add_argument("--threads", type=int, default=1,
+                    help="trivsel's --threads (curvature fits; default 1, like VTK's single-threaded filter)")
     args = ap.parse_args(argv)
 
     import numba
@@ -68,7 +71,8 @@ def main(argv=None):
 
     print(f"python {platform.python_version()}  numpy {__import__('numpy').__version__}  numba {numba.__version__}"
           f"  vtk {vtk.vtkVersion.GetVTKVersion()}  trivsel {trivsel.__version__}  cpus {os.cpu_count()}")
-    print(f"function {args.function} to {100 * args.fraction:g} %; each cell: median of {args.repeats} fresh "
+    print(f"function {args.function} to {100 * args.fraction:g} %; trivsel threads {args.threads}; "
+          f"each cell: median of {args.repeats} fresh "
           f"processes (untimed warm-up run on 5^3 first); peak = resident peak of the timed run\n")
 
     rows = []
@@ -78,7 +82,8 @@ def main(argv=None):
             for rep in range(args.repeats):
                 for m in METHODS:
                     load = _load()
-                    r = measure(m, n, function=args.function, fraction=args.fraction, timeout=args.timeout)
+                    r = measure(m, n, function=args.function, fraction=args.fraction, timeout=args.timeout,
+                                threads=args.threads)
                     r.update(repeat=rep, loadavg_1min=load)
                     rows.append(r)
                     print(f"  {m:>6} {n + 1}^3 run {rep + 1}/{args.repeats}: {r['seconds']:8.3f} s "
@@ -87,7 +92,8 @@ def main(argv=None):
             n = args.big_n
             load = _load()
             print(f"  greedy {n + 1}^3 (once) ...", flush=True)
-            r = measure("greedy", n, function=args.function, fraction=args.fraction, timeout=args.timeout)
+            r = measure("greedy", n, function=args.function, fraction=args.fraction, timeout=args.timeout,
+                        threads=args.threads)
             r.update(repeat=0, loadavg_1min=load)
             rows.append(r)
             print(f"  greedy {n + 1}^3: {r['seconds']:8.1f} s {r['peak_mb']:7.0f} MiB  (load {load:.2f})")

@@ -469,3 +469,32 @@ def test_local_frame_grid_rings_and_kuhn_symmetry():
         group |= {tuple(n - c for c in t) for t in group}
         vals = K[[index[t] for t in group]]
         assert (vals.max() - vals.min()) <= 1e-12 * vals.max()
+
+
+@pytest.mark.parametrize("n", [3, 10, 16])
+@pytest.mark.parametrize("function", [1, 3, 5])
+def test_grid_shared_stencil_fit_matches_per_point_fits(function, n):
+    # the interior points share one design matrix (one SVD instead of a QR each);
+    # the result equals the per-point fits up to rounding, including grids whose
+    # coordinates are not exact binary fractions (n = 10) and the widened rings
+    data = sample_grid(function, n)
+    ip, ix = _grid_graph(n)
+    g0, h0, u0, i0 = fit_quadratic(data.points, data.values, ip, ix, return_info=True)
+    g1, h1, u1, i1 = fit_quadratic(data.points, data.values, ip, ix, grid=True, chunk_points=97,
+                                   return_info=True)
+    scale = max(1.0, np.abs(h0).max())
+    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-12 * scale)
+    np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-11 * scale)
+    np.testing.assert_array_equal(u1, u0)
+    np.testing.assert_array_equal(i1["ring"], i0["ring"])
+    np.testing.assert_array_equal(i1["min_norm"], i0["min_norm"])
+
+
+def test_grid_hint_on_scattered_points_changes_nothing(scattered_cloud):
+    # rows only share a factorisation where their coordinate offsets agree
+    p, _, (ip, ix) = scattered_cloud
+    f = p[:, 0] ** 2 - p[:, 1] * p[:, 2] + np.sin(3 * p[:, 0])
+    g0, h0, _ = fit_quadratic(p, f, ip, ix)
+    g1, h1, _ = fit_quadratic(p, f, ip, ix, grid=True)
+    np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10)
+    np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-9)

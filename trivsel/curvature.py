@@ -357,8 +357,68 @@ def _points_values(points, values):
     return p, f
 
 
+def _csr_rows(ptr, idx, rows):
+    """The CSR sub-matrix of the given rows."""
+    lo, ln = ptr[rows], np.diff(ptr)[rows]
+    sub_ptr = np.zeros(rows.size + 1, dtype=np.int64)
+    np.cumsum(ln, out=sub_ptr[1:])
+    take = np.repeat(lo - sub_ptr[:-1], ln) + np.arange(sub_ptr[-1])
+    return sub_ptr, idx[take]
+
+
+def _shared_stencil(points, todo, ptr, idx, chunk_points):
+    """Rows with one common neighbourhood geometry: ``(mask, index offsets)`` or None.
+
+    On a grid with C-ordered point indices the full-length rows (the interior
+    points) list the same index offsets; those rows whose coordinate offsets
+    also agree with the first one's (to 1e-9 of its size, so rounding of the grid
+    coordinates does not matter) are marked.
+    """
+    ln = np.diff(ptr)
+    if ln.size == 0:
+        return None
+    L = int(ln.max())
+    full = np.flatnonzero(ln == L)
+    r0 = full[0]
+    pattern = idx[ptr[r0]:ptr[r0] + L] - todo[r0]
+    d0 = points[todo[r0] + pattern] - points[todo[r0]]
+    tol = 1e-9 * max(float(np.abs(d0).max()), np.finfo(float).tiny)
+    mask = np.zeros(todo.size, dtype=bool)
+    col = np.arange(L)
+    for start in range(0, full.size, chunk_points):
+        rows = full[start:start + chunk_points]
+        same = np.all(idx[ptr[rows][:, None] + col] - todo[rows][:, None] == pattern, axis=1)
+        rows = rows[same]
+        c = todo[rows]
+        d = points[c[:, None] + pattern] - points[c][:, None, :]
+        rows = rows[np.all(np.abs(d - d0) <= tol, axis=(1, 2))]
+        mask[rows] = True
+    return mask, pattern
+
+
+def _fit_shared(points, values, centres, pattern, rtol, chunk_points):
+    """Least-squares quadratics of points that share one neighbourhood geometry.
+
+    One SVD of the common design matrix replaces a QR per point: the
+    coefficients are ``pinv(A) b`` for every right-hand side ``b``.  Returns
+    ``(coef, scale)``, or None if the common design is rank deficient.
+    """
+    c0 = centres[0]
+    u, scale = _scaled_offsets((points[c0 + pattern] - points[c0])[None], np.ones((1, pattern.size), bool))
+    a = _design(u[0])
+    uu, sv, vt = np.linalg.svd(a, full_matrices=False)
+    if sv[-1] <= rtol * sv[0]:
+        return None
+    pinv_t = (uu / sv) @ vt  # (m, 10): b @ pinv_t = pinv(A) b
+    coef = np.empty((centres.size, _N_COEF))
+    for start in range(0, centres.size, chunk_points):
+        c = centres[start:start + chunk_points]
+        coef[start:start + c.size] = (values[c[:, None] + pattern] - values[c][:, None]) @ pinv_t
+    return coef, np.full(centres.size, scale[0])
+
+
 def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
-                  chunk_rows=300_000, chunk_points=20_000, threads=1, return_info=False):
+                  chunk_rows=300_000, chunk_points=20_000, threads=1, grid=False, return_info=False):
     """Local least-squares quadratics: gradient and Hessian at every data point.
 
     For each point ``x_0`` the trivariate quadratic
@@ -412,6 +472,13 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         design rows per batched solve.
     threads : int
         Chunks solved in parallel (the result is the same for any value).
+    grid : bool
+        The points are a regular grid in C order (``trivsel.sample_grid``,
+        ``grid_from_array``): the points whose neighbourhood is the full stencil
+        (all interior points) share one design matrix, so one SVD of it solves
+        them all (``pinv(A) b``; equal to the per-point QR up to rounding, and
+        much faster); the others take the general path.  Only a hint: rows are
+        shared only where their coordinate offsets are checked to agree.
     return_info : bool
         Also return a dict with ``ring`` ((N,) int8, the ring finally used) and
         ``min_norm`` ((N,) bool).
@@ -438,8 +505,24 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         return _fit_block(p, f, centres, nbr, mask, rtol)
 
     def fit(todo, ptr, idx):
-        coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points,
-                                           threads=threads)
+        shared = _shared_stencil(p, todo, ptr, idx, chunk_points) if grid else None
+        solved = None
+        if shared is not None and shared[0].any():
+            mask, pattern = shared
+            solved = _fit_shared(p, f, todo[mask], pattern, rtol, chunk_points)
+        if solved is None:
+            coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points,
+                                               threads=threads)
+            return _coef_to_derivatives(coef, scale), deficient
+        coef = np.empty((todo.size, _N_COEF))
+        scale = np.empty(todo.size)
+        deficient = np.zeros(todo.size, dtype=bool)
+        coef[mask], scale[mask] = solved
+        rest = np.flatnonzero(~mask)
+        if rest.size:
+            sub_ptr, sub_idx = _csr_rows(ptr, idx, rest)
+            coef[rest], scale[rest], deficient[rest] = _fit_rows(block, todo[rest], sub_ptr, sub_idx,
+                                                                 chunk_rows, chunk_points, threads=threads)
         return _coef_to_derivatives(coef, scale), deficient
 
     (grad, hess), ring, min_norm = _widening_fits(npts, indptr, indices, max_ring, fit)

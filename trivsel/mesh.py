@@ -87,62 +87,78 @@ def _vol(I, P, ui, a, b, c, d):
 
 
 @njit(cache=True, inline="always")
-def _locate(I, P, F, ui, q0, q1, q2, q3, p):
-    """Closed containment of point p in tet (q0..q3): (inside, n_zero_signs, interpolated value).
+def _tet_data(I, P, F, q0, q1, q2, q3):
+    """Integer and float coordinates and values of tet (q0..q3) as tuples (for :func:`_locate_at`)."""
+    qi = (I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
+          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+    qf = (P[q0, 0], P[q0, 1], P[q0, 2], P[q1, 0], P[q1, 1], P[q1, 2],
+          P[q2, 0], P[q2, 1], P[q2, 2], P[q3, 0], P[q3, 1], P[q3, 2])
+    return qi, qf, (F[q0], F[q1], F[q2], F[q3])
+
+
+@njit(cache=True, inline="always")
+def _locate_at(ui, pi, pf, qi, qf, fq, p, q0, q1, q2, q3):
+    """Closed containment of point p (integer coordinates ``pi``, float ``pf``) in the tet
+    given by :func:`_tet_data`: (inside, n_zero_signs, interpolated value).
 
     The barycentric weights (eq. 13) are the four sub-volumes with p replacing one
     vertex; the interpolant is the linear polynomial L of eq. 16.  On grids the
-    exact integer sub-volumes serve both as signs and as weights.  Inlined into
-    its callers (no reference counting of its array arguments per call: 1.6x
-    faster overall, for about 13 s more one-time compilation).
+    exact integer sub-volumes serve both as signs and as weights; on floats the
+    signs are robust (:func:`orient3d_float_sign`).  Scalars and tuples only: it is
+    inlined into the point loops, where every array argument of an inlined
+    function cost a reference-count update per point (measured by sampling).
     """
     if ui:
-        w0 = orient3d_int(I[p, 0], I[p, 1], I[p, 2], I[q1, 0], I[q1, 1], I[q1, 2],
-                          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        w0 = orient3d_int(pi[0], pi[1], pi[2], qi[3], qi[4], qi[5], qi[6], qi[7], qi[8], qi[9], qi[10], qi[11])
         if w0 < 0:
             return False, 0, 0.0
-        w1 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[p, 0], I[p, 1], I[p, 2],
-                          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        w1 = orient3d_int(qi[0], qi[1], qi[2], pi[0], pi[1], pi[2], qi[6], qi[7], qi[8], qi[9], qi[10], qi[11])
         if w1 < 0:
             return False, 0, 0.0
-        w2 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
-                          I[p, 0], I[p, 1], I[p, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+        w2 = orient3d_int(qi[0], qi[1], qi[2], qi[3], qi[4], qi[5], pi[0], pi[1], pi[2], qi[9], qi[10], qi[11])
         if w2 < 0:
             return False, 0, 0.0
-        w3 = orient3d_int(I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
-                          I[q2, 0], I[q2, 1], I[q2, 2], I[p, 0], I[p, 1], I[p, 2])
+        w3 = orient3d_int(qi[0], qi[1], qi[2], qi[3], qi[4], qi[5], qi[6], qi[7], qi[8], pi[0], pi[1], pi[2])
         if w3 < 0:
             return False, 0, 0.0
         nz = (w0 == 0) + (w1 == 0) + (w2 == 0) + (w3 == 0)
         tot = float(w0 + w1 + w2 + w3)
-        return True, nz, (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
-    s0 = _sign(I, P, ui, p, q1, q2, q3)
+        return True, nz, (w0 * fq[0] + w1 * fq[1] + w2 * fq[2] + w3 * fq[3]) / tot
+    s0 = orient3d_float_sign(pf[0], pf[1], pf[2], qf[3], qf[4], qf[5], qf[6], qf[7], qf[8], qf[9], qf[10], qf[11])
     if s0 < 0:
         return False, 0, 0.0
-    s1 = _sign(I, P, ui, q0, p, q2, q3)
+    s1 = orient3d_float_sign(qf[0], qf[1], qf[2], pf[0], pf[1], pf[2], qf[6], qf[7], qf[8], qf[9], qf[10], qf[11])
     if s1 < 0:
         return False, 0, 0.0
-    s2 = _sign(I, P, ui, q0, q1, p, q3)
+    s2 = orient3d_float_sign(qf[0], qf[1], qf[2], qf[3], qf[4], qf[5], pf[0], pf[1], pf[2], qf[9], qf[10], qf[11])
     if s2 < 0:
         return False, 0, 0.0
-    s3 = _sign(I, P, ui, q0, q1, q2, p)
+    s3 = orient3d_float_sign(qf[0], qf[1], qf[2], qf[3], qf[4], qf[5], qf[6], qf[7], qf[8], pf[0], pf[1], pf[2])
     if s3 < 0:
         return False, 0, 0.0
     nz = (s0 == 0) + (s1 == 0) + (s2 == 0) + (s3 == 0)
     if p == q0:
-        return True, nz, F[q0]
+        return True, nz, fq[0]
     if p == q1:
-        return True, nz, F[q1]
+        return True, nz, fq[1]
     if p == q2:
-        return True, nz, F[q2]
+        return True, nz, fq[2]
     if p == q3:
-        return True, nz, F[q3]
-    w0 = _vol(I, P, ui, p, q1, q2, q3) if s0 > 0 else 0.0
-    w1 = _vol(I, P, ui, q0, p, q2, q3) if s1 > 0 else 0.0
-    w2 = _vol(I, P, ui, q0, q1, p, q3) if s2 > 0 else 0.0
-    w3 = _vol(I, P, ui, q0, q1, q2, p) if s3 > 0 else 0.0
+        return True, nz, fq[3]
+    w0 = orient3d_float(pf[0], pf[1], pf[2], qf[3], qf[4], qf[5], qf[6], qf[7], qf[8], qf[9], qf[10], qf[11]) if s0 > 0 else 0.0
+    w1 = orient3d_float(qf[0], qf[1], qf[2], pf[0], pf[1], pf[2], qf[6], qf[7], qf[8], qf[9], qf[10], qf[11]) if s1 > 0 else 0.0
+    w2 = orient3d_float(qf[0], qf[1], qf[2], qf[3], qf[4], qf[5], pf[0], pf[1], pf[2], qf[9], qf[10], qf[11]) if s2 > 0 else 0.0
+    w3 = orient3d_float(qf[0], qf[1], qf[2], qf[3], qf[4], qf[5], qf[6], qf[7], qf[8], pf[0], pf[1], pf[2]) if s3 > 0 else 0.0
     tot = w0 + w1 + w2 + w3
-    return True, nz, (w0 * F[q0] + w1 * F[q1] + w2 * F[q2] + w3 * F[q3]) / tot
+    return True, nz, (w0 * fq[0] + w1 * fq[1] + w2 * fq[2] + w3 * fq[3]) / tot
+
+
+@njit(cache=True, inline="always")
+def _locate(I, P, F, ui, q0, q1, q2, q3, p):
+    """:func:`_locate_at` from the coordinate arrays (for loops that are not hot)."""
+    qi, qf, fq = _tet_data(I, P, F, q0, q1, q2, q3)
+    return _locate_at(ui, (I[p, 0], I[p, 1], I[p, 2]), (P[p, 0], P[p, 1], P[p, 2]), qi, qf, fq,
+                      p, q0, q1, q2, q3)
 
 
 @njit(cache=True)
@@ -293,6 +309,52 @@ def _link(S, t, i, u):
         nbr[u, j] = t
 
 
+@njit(cache=True)
+def _fill_tet(I_, P_, F_, ui_, buf, m, q0, q1, q2, q3, t, pool, top, cand, isvert, ownvert, mark, st,
+              resid, owner, acc, ctr, tolinf):
+    """Step 5 of :func:`_replace` for one new tet t = (q0, q1, q2, q3): its bucket from the
+    cavity's points ``buf[:m]``, its errors (eqs. 14-15), its worst candidate, and the
+    residuals of the points it is the first to cover.  Plain array arguments: inside
+    this loop every array taken from the state tuple would cost a reference count."""
+    L = 0
+    sse = 0.0
+    mx = 0.0
+    cnt = 0
+    best = -1
+    bestr = 0.0
+    qi, qf, fq = _tet_data(I_, P_, F_, q0, q1, q2, q3)
+    for j in range(m):
+        p = buf[j]
+        inside, nz, val = _locate_at(ui_, (I_[p, 0], I_[p, 1], I_[p, 2]), (P_[p, 0], P_[p, 1], P_[p, 2]),
+                                     qi, qf, fq, p, q0, q1, q2, q3)
+        if not inside:
+            continue
+        pool[top + L] = p
+        L += 1
+        r = F_[p] - val
+        if cand[p] and not isvert[p] and abs(r) > bestr:
+            best = p
+            bestr = abs(r)
+        if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
+            sse += r * r
+            ar = abs(r)
+            if ar > mx:
+                mx = ar
+            cnt += 1
+        if mark[p] == st:
+            mark[p] = st - 1  # covered
+            old_r = resid[p]
+            acc[0] += r * r - old_r * old_r
+            if tolinf >= 0.0:
+                if abs(old_r) > tolinf:
+                    ctr[C_ABOVE] -= 1
+                if abs(r) > tolinf:
+                    ctr[C_ABOVE] += 1
+            resid[p] = r
+            owner[p] = t
+    return L, sse, mx, cnt, best, bestr
+
+
 # ----------------------------------------------------------------------------- the primitive
 
 @njit(cache=True)
@@ -384,7 +446,6 @@ def _replace(S, old, nold, newq, nnew, new_hull):
             ctr[C_ERROR] = ERR_POOLCAP
             return ids[:0]
     buf = S[_WBUF]
-    F = S[_F]
     resid = S[_RESID]
     owner = S[_OWNER]
     acc = S[_ACC]
@@ -403,40 +464,9 @@ def _replace(S, old, nold, newq, nnew, new_hull):
         q3 = tets[t, 3]
         top = ctr[C_POOLTOP]
         S[_BSTART][t] = top
-        L = 0
-        sse = 0.0
-        mx = 0.0
-        cnt = 0
-        best = -1
-        bestr = 0.0
-        for j in range(m):
-            p = buf[j]
-            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
-            if not inside:
-                continue
-            pool[top + L] = p
-            L += 1
-            r = F[p] - val
-            if cand[p] and not isvert[p] and abs(r) > bestr:
-                best = p
-                bestr = abs(r)
-            if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
-                sse += r * r
-                ar = abs(r)
-                if ar > mx:
-                    mx = ar
-                cnt += 1
-            if mark[p] == st:
-                mark[p] = st - 1  # covered
-                old_r = resid[p]
-                acc[0] += r * r - old_r * old_r
-                if tolinf >= 0.0:
-                    if abs(old_r) > tolinf:
-                        ctr[C_ABOVE] -= 1
-                    if abs(r) > tolinf:
-                        ctr[C_ABOVE] += 1
-                resid[p] = r
-                owner[p] = t
+        L, sse, mx, cnt, best, bestr = _fill_tet(I_, P_, F_, ui_, buf, m, q0, q1, q2, q3, t, pool, top,
+                                                 cand, isvert, ownvert, mark, st, resid, owner, acc,
+                                                 ctr, tolinf)
         S[_BLEN][t] = L
         ctr[C_POOLTOP] = top + L
         S[_TSSE][t] = sse
@@ -453,12 +483,14 @@ def _replace(S, old, nold, newq, nnew, new_hull):
 @njit(cache=True)
 def _positive(S, newq, nnew):
     """Admissibility: every new tet has strictly positive volume."""
-    I_ = S[_IC]
-    P_ = S[_P]
-    F_ = S[_F]
-    ui_ = S[_FOPT][O_USEINT] > 0.0
+    return _positive_at(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, newq, nnew)
+
+
+@njit(cache=True, inline="always")
+def _positive_at(I, P, ui, newq, nnew):
+    """:func:`_positive` on the coordinate arrays (for :func:`swap`'s loop)."""
     for k in range(nnew):
-        if _sign(I_, P_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
+        if _sign(I, P, ui, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
             return False
     return True
 
@@ -522,9 +554,11 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
         sse = 0.0
         mx = 0.0
         cnt = 0
+        qi, qf, fq = _tet_data(I_, P_, F_, q0, q1, q2, q3)
         for j in range(m):
             p = buf[j]
-            inside, nz, val = _locate(I_, P_, F_, ui_, q0, q1, q2, q3, p)
+            inside, nz, val = _locate_at(ui_, (I_[p, 0], I_[p, 1], I_[p, 2]), (P_[p, 0], P_[p, 1], P_[p, 2]),
+                                         qi, qf, fq, p, q0, q1, q2, q3)
             if inside and (ownvert or (p != q0 and p != q1 and p != q2 and p != q3)):
                 r = F[p] - val
                 sse += r * r
@@ -675,8 +709,13 @@ def config23(S, t, i, old, newq):
     Fills old[:2] and newq[:3] with (f1, f2, e, d), (f2, f3, e, d), (f3, f1, e, d);
     returns False when face i is on the hull.
     """
-    tets = S[_TETS]
-    u = S[_NBR][t, i]
+    return _config23(S[_TETS], S[_NBR], t, i, old, newq)
+
+
+@njit(cache=True, inline="always")
+def _config23(tets, nbr, t, i, old, newq):
+    """:func:`config23` on the arrays (for :func:`swap`'s loop)."""
+    u = nbr[t, i]
     if u < 0:
         return False
     d = tets[t, i]
@@ -722,10 +761,16 @@ def edge_ring(S, t, a, b, old, ring):
     Returns k for a closed ring (interior edge) of at most old.shape[0] tets, -1
     for an edge on the hull, or -2 for a longer ring.
     """
-    tets = S[_TETS]
-    nbr = S[_NBR]
+    return _edge_ring(S[_TETS], S[_NBR], S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b, old, ring)
+
+
+@njit(cache=True, inline="always")
+def _edge_ring(tets, nbr, I, P, ui, t, a, b, old, ring):
+    """:func:`edge_ring` on the arrays themselves: :func:`swap` walks six edges of every
+    tet of O each round, and taking the arrays out of the state tuple per walk was
+    the largest single cost of a greedy run (sampled)."""
     cap = old.shape[0]
-    x, y = _edge_opposite(tets, S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b)
+    x, y = _edge_opposite(tets, I, P, ui, t, a, b)
     # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
     k = 0
     cur = t
@@ -973,9 +1018,12 @@ def swap(S, seed, nseed, with_neighbours):
     """
     tets = S[_TETS]
     nbr = S[_NBR]
+    I_ = S[_IC]
+    P_ = S[_P]
     alive = S[_ALIVE]
     ctr = S[_CTR]
     fopt = S[_FOPT]
+    ui_ = fopt[O_USEINT] > 0.0
     om = S[_OMARK]
     reltol = fopt[O_RELTOL]
     abstol = fopt[O_ABSTOL]
@@ -1022,8 +1070,8 @@ def swap(S, seed, nseed, with_neighbours):
                 u = nbr[t, i]
                 if u < 0 or (om[u] == st and u < t):
                     continue
-                config23(S, t, i, old, newq)
-                if not _positive(S, newq, 3):
+                _config23(tets, nbr, t, i, old, newq)
+                if not _positive_at(I_, P_, ui_, newq, 3):
                     continue
                 _config_key(tver, 0, -1, -1, old, 2, key)
                 slot, found = _cache_slot(hkey, key)
@@ -1049,7 +1097,7 @@ def swap(S, seed, nseed, with_neighbours):
             for e in range(6):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
-                k = edge_ring(S, t, a, b, old, ring)
+                k = _edge_ring(tets, nbr, I_, P_, ui_, t, a, b, old, ring)
                 if k == -1 and bflip:
                     g = _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol)
                     if g > best_gain:
@@ -1080,7 +1128,7 @@ def swap(S, seed, nseed, with_neighbours):
                     else:
                         quads44(a, b, ring, alt, newq)
                         nn = 4
-                    if not _positive(S, newq, nn):
+                    if not _positive_at(I_, P_, ui_, newq, nn):
                         continue
                     if k == 3:
                         _config_key(tver, 1, -1, -1, old, 3, key)

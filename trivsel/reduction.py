@@ -304,8 +304,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         graph = edge_neighbours(all_tets, N)
     if method != "greedy":
         graph = neighbour_graph(*graph, shape=data.shape, kind=neighbourhood)
+        fast = {"grid": True} if data.is_grid and curvature == "direct" else {}  # one SVD for the interior
         K = absolute_curvature(data.points, data.values, tets=all_tets, neighbours=graph, estimator=curvature,
-                               threads=threads)
+                               threads=threads, **fast)
     t_curv = time.perf_counter() - t0
     if method != "greedy":
         key = K

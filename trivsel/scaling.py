@@ -114,7 +114,7 @@ def _reset_peak():
     return hwm is not None and rss is not None and hwm <= rss + 1.0
 
 
-def _one_run(method, data, fraction, seed):
+def _one_run(method, data, fraction, seed, threads=1):
     """One run of ``method`` on ``data``; returns the number of points kept."""
     from .selection import count_for_fraction
 
@@ -126,11 +126,11 @@ def _one_run(method, data, fraction, seed):
         return dm.n_vertices
     from . import reduce
 
-    res = reduce(data, fractions=[fraction], method=method)
+    res = reduce(data, fractions=[fraction], method=method, threads=threads)
     return int(res.snapshots[0].n_selected)
 
 
-def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1) -> dict:
+def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads=1) -> dict:
     """Warm up, then time one run of ``method`` on the ``(n+1)^3`` grid, in this process.
 
     Parameters
@@ -149,6 +149,8 @@ def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1) -> dict
         loaded); 0 skips the warm-up.
     seed : int
         Seed of C ``rand()`` for VTK's random edge candidates.
+    threads : int
+        trivsel's ``threads`` (the curvature fits; VTK's filter is single-threaded).
 
     Returns
     -------
@@ -166,28 +168,28 @@ def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1) -> dict
         raise ValueError(f"method must be one of {SCALE_METHODS}, got {method!r}")
     t0 = time.perf_counter()
     if warmup_n:
-        _one_run(method, sample_grid(function, int(warmup_n)), fraction, seed)
+        _one_run(method, sample_grid(function, int(warmup_n)), fraction, seed, threads)
     warmup = time.perf_counter() - t0
     data = sample_grid(function, int(n))
     warmup_peak = _self_peak_mb()
     reset = _reset_peak()
     base = _proc_status_mb("VmRSS") if reset else warmup_peak
     t0 = time.perf_counter()
-    n_sel = _one_run(method, data, fraction, seed)
+    n_sel = _one_run(method, data, fraction, seed, threads)
     seconds = time.perf_counter() - t0
     run_peak = _proc_status_mb("VmHWM") if reset else None
     return dict(method=method, n=int(n), n_points=int(data.n_points), n_selected=int(n_sel), seconds=seconds,
                 base_mb=base, run_peak_mb=run_peak, peak_reset=reset, warmup_peak_mb=warmup_peak,
-                warmup_seconds=warmup, function=function, fraction=float(fraction))
+                warmup_seconds=warmup, function=function, fraction=float(fraction), threads=int(threads))
 
 
-def measure(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, timeout=None, log=None,
+def measure(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads=1, timeout=None, log=None,
             python=None) -> dict:
     """One measurement (see :func:`run_here`) in a fresh Python process.
 
     Parameters
     ----------
-    method, n, function, fraction, warmup_n, seed
+    method, n, function, fraction, warmup_n, seed, threads
         As for :func:`run_here`.
     timeout : float, optional
         Kill the child after this many seconds (then ``RuntimeError``).
@@ -213,7 +215,7 @@ def measure(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, timeout=
     """
     cmd = [python or sys.executable, "-m", "trivsel.scaling", "--method", str(method), "--n", str(int(n)),
            "--function", str(function), "--fraction", repr(float(fraction)), "--warmup-n", str(int(warmup_n)),
-           "--seed", str(int(seed))]
+           "--seed", str(int(seed)), "--threads", str(int(threads))]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True, env=env)
     timer = threading.Timer(timeout, proc.kill) if timeout else None
@@ -574,8 +576,10 @@ def main(argv=None):
     ap.add_argument("--fraction", type=float, default=0.1)
     ap.add_argument("--warmup-n", type=int, default=4)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--threads", type=int, default=1)
     a = ap.parse_args(argv)
-    res = run_here(a.method, a.n, function=a.function, fraction=a.fraction, warmup_n=a.warmup_n, seed=a.seed)
+    res = run_here(a.method, a.n, function=a.function, fraction=a.fraction, warmup_n=a.warmup_n, seed=a.seed,
+                   threads=a.threads)
     print(_RESULT_TAG + json.dumps(res), flush=True)
     return 0
 

@@ -11,7 +11,8 @@ sm = snakemake  # noqa: F821
 method, n = sm.wildcards.scale_method, int(sm.wildcards.n)
 print(f"{method}, n = {n} ({(n + 1) ** 3} points), function {sm.params.function} to {sm.params.fraction:g}; "
       f"fresh process, warm-up on the 5^3 grid first")
-res = measure(method, n, function=int(sm.params.function), fraction=float(sm.params.fraction), log=print)
+res = measure(method, n, function=int(sm.params.function), fraction=float(sm.params.fraction),
+              threads=int(sm.threads), log=print)
 with open(sm.output[0], "w") as fh:
     json.dump(res, fh, indent=1)
 print(json.dumps(res, indent=1))
