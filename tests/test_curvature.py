@@ -498,3 +498,13 @@ def test_grid_hint_on_scattered_points_changes_nothing(scattered_cloud):
     g1, h1, _ = fit_quadratic(p, f, ip, ix, grid=True)
     np.testing.assert_allclose(g1, g0, rtol=0, atol=1e-10)
     np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("shape", [(2, 2, 2), (2, 3, 5), (5, 4, 3), (7, 7, 7)])
+def test_kuhn_stencil_graph_equals_the_graph_of_the_kuhn_tets(shape):
+    from trivsel.triangulation import kuhn_edge_neighbours
+
+    ip, ix = kuhn_edge_neighbours(shape)
+    jp, jx = edge_neighbours(kuhn_tetrahedra(shape), int(np.prod(shape)))
+    np.testing.assert_array_equal(ip, jp)
+    np.testing.assert_array_equal(ix, jx)

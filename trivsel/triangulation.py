@@ -146,15 +146,17 @@ def kuhn_edge_neighbours(shape):
     offs = np.array([o for o in itertools.product((0, 1), repeat=3) if any(o)], dtype=np.int64)
     offs = np.concatenate([-offs, offs])  # 14 offsets
     offs = offs[np.lexsort((offs[:, 2], offs[:, 1], offs[:, 0]))]  # ascending linear offset
-    ii, jj, kk = np.meshgrid(np.arange(sx), np.arange(sy), np.arange(sz), indexing="ij")
-    ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
-    n = len(ijk)
-    nb = ijk[:, None, :] + offs[None, :, :]  # (n, 14, 3)
-    ok = np.all((nb >= 0) & (nb < np.array([sx, sy, sz])), axis=2)
-    lin = (nb[..., 0] * sy + nb[..., 1]) * sz + nb[..., 2]
+    n = sx * sy * sz
+    # per offset: which points have that neighbour (a box of the grid), one column each
+    ok = np.zeros((n, len(offs)), dtype=bool)
+    okv = ok.reshape(sx, sy, sz, len(offs))
+    for c, (di, dj, dk) in enumerate(offs):
+        okv[max(0, -di):sx - max(0, di), max(0, -dj):sy - max(0, dj), max(0, -dk):sz - max(0, dk), c] = True
+    step = (offs[:, 0] * sy + offs[:, 1]) * sz + offs[:, 2]  # linear index offsets, ascending
+    rows, cols = np.nonzero(ok)  # row-major: by point, then by ascending offset
     indptr = np.zeros(n + 1, dtype=np.int64)
-    indptr[1:] = np.cumsum(ok.sum(axis=1))
-    return indptr, lin[ok]
+    np.cumsum(ok.sum(axis=1), out=indptr[1:])
+    return indptr, rows + step[cols]
 
 
 def neighbour_graph(indptr, indices, shape=None, kind: str = "kuhn"):
