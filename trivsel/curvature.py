@@ -290,10 +290,11 @@ def _check_threads(threads):
 def _widening_fits(npts, indptr, indices, max_ring, fit):
     """Fit over closed k-rings, widening (k = 1, 2, ..., ``max_ring``) where deficient.
 
-    ``fit(todo, ptr, idx)`` fits the points ``todo`` over the CSR rows
+    ``fit(todo, ptr, idx, last)`` fits the points ``todo`` over the CSR rows
     ``(ptr, idx)`` (row i: the neighbourhood of ``todo[i]``) and returns
     ``(arrays, deficient)``; ``arrays`` are stored per point, the ``deficient``
-    points are refitted over the next ring.
+    points are refitted over the next ring (``last``: there is none, so deficient
+    fits must be usable, i.e. minimum-norm).
 
     Returns
     -------
@@ -314,7 +315,8 @@ def _widening_fits(npts, indptr, indices, max_ring, fit):
     todo = np.arange(npts)
     rows = closed
     for k in range(1, max_ring + 1):
-        arrays, deficient = fit(todo, rows.indptr.astype(np.int64), rows.indices.astype(np.int64))
+        arrays, deficient = fit(todo, rows.indptr.astype(np.int64), rows.indices.astype(np.int64),
+                                k == max_ring)
         if results is None:
             results = [np.empty((npts,) + a.shape[1:], dtype=a.dtype) for a in arrays]
         for res, a in zip(results, arrays):
@@ -366,55 +368,70 @@ def _csr_rows(ptr, idx, rows):
     return sub_ptr, idx[take]
 
 
-def _shared_stencil(points, todo, ptr, idx, chunk_points):
-    """Rows with one common neighbourhood geometry: ``(mask, index offsets)`` or None.
+def _shared_stencils(points, todo, ptr, idx, min_rows=64):
+    """Groups of rows with one common neighbourhood geometry.
 
-    On a grid with C-ordered point indices the full-length rows (the interior
-    points) list the same index offsets; those rows whose coordinate offsets
-    also agree with the first one's (to 1e-9 of its size, so rounding of the grid
-    coordinates does not matter) are marked.
+    On a grid with C-ordered point indices, all interior points list the same
+    index offsets, and so do the points of each face, edge and corner class.
+    Rows are grouped by their index offsets (a hash, then checked exactly); a
+    group is kept if it has at least ``min_rows`` rows, and within it only the
+    rows whose coordinate offsets agree with its first row's (to 1e-9 of their
+    size, so rounding of the grid coordinates does not matter).
+
+    Returns a list of ``(rows, index offsets)``.
     """
     ln = np.diff(ptr)
     if ln.size == 0:
-        return None
+        return []
     L = int(ln.max())
-    full = np.flatnonzero(ln == L)
-    r0 = full[0]
-    pattern = idx[ptr[r0]:ptr[r0] + L] - todo[r0]
-    d0 = points[todo[r0] + pattern] - points[todo[r0]]
-    tol = 1e-9 * max(float(np.abs(d0).max()), np.finfo(float).tiny)
-    mask = np.zeros(todo.size, dtype=bool)
     col = np.arange(L)
-    for start in range(0, full.size, chunk_points):
-        rows = full[start:start + chunk_points]
-        same = np.all(idx[ptr[rows][:, None] + col] - todo[rows][:, None] == pattern, axis=1)
-        rows = rows[same]
+    inrow = col[None, :] < ln[:, None]
+    off = np.where(inrow, idx[np.minimum(ptr[:-1, None] + col, idx.size - 1)] - todo[:, None], 0)
+    mult = np.random.default_rng(0).integers(1, 2**62, size=L) | 1
+    with np.errstate(over="ignore"):
+        h = (off * mult).sum(axis=1) + ln * 1000003
+    uniq, inv, counts = np.unique(h, return_inverse=True, return_counts=True)
+    groups = []
+    for g in np.flatnonzero(counts >= min_rows):
+        rows = np.flatnonzero(inv == g)
+        r0 = rows[0]
+        m = int(ln[r0])
+        pattern = off[r0, :m]
+        rows = rows[(ln[rows] == m) & np.all(off[rows, :m] == pattern, axis=1)]
+        d0 = points[todo[r0] + pattern] - points[todo[r0]]
+        tol = 1e-9 * max(float(np.abs(d0).max()), np.finfo(float).tiny)
         c = todo[rows]
         d = points[c[:, None] + pattern] - points[c][:, None, :]
         rows = rows[np.all(np.abs(d - d0) <= tol, axis=(1, 2))]
-        mask[rows] = True
-    return mask, pattern
+        if rows.size >= min_rows:
+            groups.append((rows, pattern))
+    return groups
 
 
-def _fit_shared(points, values, centres, pattern, rtol, chunk_points):
+def _fit_shared(points, values, centres, pattern, rtol, chunk_points, need_min_norm):
     """Least-squares quadratics of points that share one neighbourhood geometry.
 
     One SVD of the common design matrix replaces a QR per point: the
     coefficients are ``pinv(A) b`` for every right-hand side ``b``.  Returns
-    ``(coef, scale)``, or None if the common design is rank deficient.
+    ``(coef, scale, deficient)``; a rank-deficient design gives the minimum-norm
+    coefficients if ``need_min_norm`` (the widest ring) and None otherwise (the
+    points are refitted over a wider ring anyway).
     """
     c0 = centres[0]
     u, scale = _scaled_offsets((points[c0 + pattern] - points[c0])[None], np.ones((1, pattern.size), bool))
     a = _design(u[0])
     uu, sv, vt = np.linalg.svd(a, full_matrices=False)
-    if sv[-1] <= rtol * sv[0]:
-        return None
-    pinv_t = (uu / sv) @ vt  # (m, 10): b @ pinv_t = pinv(A) b
-    coef = np.empty((centres.size, _N_COEF))
-    for start in range(0, centres.size, chunk_points):
-        c = centres[start:start + chunk_points]
-        coef[start:start + c.size] = (values[c[:, None] + pattern] - values[c][:, None]) @ pinv_t
-    return coef, np.full(centres.size, scale[0])
+    deficient = bool(sv[-1] <= rtol * sv[0])
+    coef = None
+    if not deficient or need_min_norm:
+        keep = sv > rtol * sv[0]
+        inv_s = np.where(keep, 1.0 / np.where(keep, sv, 1.0), 0.0)
+        pinv_t = (uu * inv_s) @ vt  # (m, 10): b @ pinv_t = pinv(A) b
+        coef = np.empty((centres.size, _N_COEF))
+        for start in range(0, centres.size, chunk_points):
+            c = centres[start:start + chunk_points]
+            coef[start:start + c.size] = (values[c[:, None] + pattern] - values[c][:, None]) @ pinv_t
+    return coef, np.full(centres.size, scale[0]), np.full(centres.size, deficient)
 
 
 def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
@@ -475,10 +492,11 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
     grid : bool
         The points are a regular grid in C order (``trivsel.sample_grid``,
         ``grid_from_array``): the points whose neighbourhood is the full stencil
-        (all interior points) share one design matrix, so one SVD of it solves
-        them all (``pinv(A) b``; equal to the per-point QR up to rounding, and
-        much faster); the others take the general path.  Only a hint: rows are
-        shared only where their coordinate offsets are checked to agree.
+        and the points of each boundary class share one design matrix per
+        class, so one SVD solves each class (``pinv(A) b``; equal to the
+        per-point QR up to rounding, and much faster); the rest take the general
+        path.  Only a hint: rows share a solve only where their coordinate
+        offsets are checked to agree.
     return_info : bool
         Also return a dict with ``ring`` ((N,) int8, the ring finally used) and
         ``min_norm`` ((N,) bool).
@@ -504,22 +522,20 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
     def block(centres, nbr, mask):
         return _fit_block(p, f, centres, nbr, mask, rtol)
 
-    def fit(todo, ptr, idx):
-        shared = _shared_stencil(p, todo, ptr, idx, chunk_points) if grid else None
-        solved = None
-        if shared is not None and shared[0].any():
-            mask, pattern = shared
-            solved = _fit_shared(p, f, todo[mask], pattern, rtol, chunk_points)
-        if solved is None:
-            coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points,
-                                               threads=threads)
-            return _coef_to_derivatives(coef, scale), deficient
-        coef = np.empty((todo.size, _N_COEF))
-        scale = np.empty(todo.size)
+    def fit(todo, ptr, idx, last):
+        coef = np.zeros((todo.size, _N_COEF))
+        scale = np.ones(todo.size)
         deficient = np.zeros(todo.size, dtype=bool)
-        coef[mask], scale[mask] = solved
-        rest = np.flatnonzero(~mask)
-        if rest.size:
+        done = np.zeros(todo.size, dtype=bool)
+        for rows, pattern in (_shared_stencils(p, todo, ptr, idx) if grid else []):
+            c, h, dfc = _fit_shared(p, f, todo[rows], pattern, rtol, chunk_points, last)
+            if c is not None:
+                coef[rows] = c
+            scale[rows], deficient[rows], done[rows] = h, dfc, True
+        rest = np.flatnonzero(~done)
+        if rest.size == todo.size:
+            coef, scale, deficient = _fit_rows(block, todo, ptr, idx, chunk_rows, chunk_points, threads=threads)
+        elif rest.size:
             sub_ptr, sub_idx = _csr_rows(ptr, idx, rest)
             coef[rest], scale[rest], deficient[rest] = _fit_rows(block, todo[rest], sub_ptr, sub_idx,
                                                                  chunk_rows, chunk_points, threads=threads)
@@ -774,7 +790,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
     def block(centres, nbr, mask):
         return _frame_block(p, lifted, normals, centres, nbr, mask, rtol)
 
-    def fit(todo, ptr, idx):
+    def fit(todo, ptr, idx, last):
         coef, scale, deficient, frame_def = _fit_rows(block, todo, ptr, idx, chunk_rows,
                                                       chunk_points, out=_FRAME_OUT, threads=threads)
         grad, hess = _coef_to_derivatives(coef, scale)
