@@ -38,8 +38,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .data import resolve_function
-from .errors_input import InputError
+from .data import points_values, resolve_function
+from .errors_input import InputError, check_threads
 
 __all__ = [
     "fit_quadratic",
@@ -281,12 +281,6 @@ def _fit_rows(block, centres, ptr, idx, chunk_rows, chunk_points, out=_DIRECT_OU
     return results
 
 
-def _check_threads(threads):
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
-    return int(threads)
-
-
 def _widening_fits(npts, indptr, indices, max_ring, fit):
     """Fit over closed k-rings, widening (k = 1, 2, ..., ``max_ring``) where deficient.
 
@@ -346,17 +340,6 @@ def _coef_to_derivatives(coef, scale):
     hess[:, 0, 2] = hess[:, 2, 0] = xz
     hess[:, 1, 2] = hess[:, 2, 1] = yz
     return grad, hess
-
-
-def _points_values(points, values):
-    """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
-    p = np.asarray(points, dtype=float)
-    f = np.asarray(values, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"points must have shape (N, 3), got {p.shape}")
-    if f.shape != (p.shape[0],):
-        raise InputError(f"values must have shape ({p.shape[0]},), got {f.shape}")
-    return p, f
 
 
 def _csr_rows(ptr, idx, rows):
@@ -509,7 +492,7 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         True where the 1-ring fit was rank deficient and a wider ring was used.
     info : dict, only if ``return_info``
     """
-    p, f = _points_values(points, values)
+    p, f = points_values(points, values)
     npts = p.shape[0]
     indptr = np.asarray(indptr, dtype=np.int64)
     indices = np.asarray(indices, dtype=np.int64)
@@ -517,7 +500,7 @@ def fit_quadratic(points, values, indptr, indices, *, rtol=1e-8, max_ring=3,
         raise InputError(f"indptr must have length N + 1 = {npts + 1}, got {indptr.shape}")
     if max_ring < 1:
         raise ValueError(f"max_ring must be >= 1, got {max_ring}")
-    threads = _check_threads(threads)
+    threads = check_threads(threads)
 
     def block(centres, nbr, mask):
         return _fit_block(p, f, centres, nbr, mask, rtol)
@@ -767,7 +750,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
     """
     from .triangulation import delaunay_tetrahedra, edge_neighbours
 
-    p, f = _points_values(points, values)
+    p, f = points_values(points, values)
     npts = p.shape[0]
     if max_ring < 1:
         raise ValueError(f"max_ring must be >= 1, got {max_ring}")
@@ -783,7 +766,7 @@ def local_frame_curvature(points, values, tets=None, neighbours=None, *, weighti
     if indptr.shape != (npts + 1,):
         raise InputError(f"indptr must have length N + 1 = {npts + 1}, got {indptr.shape}")
 
-    threads = _check_threads(threads)
+    threads = check_threads(threads)
     normals = vertex_normals(p, f, tets, weighting=weighting)
     lifted = np.concatenate([p, f[:, None]], axis=1)
 

@@ -191,6 +191,17 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
                      origin=origin, spacing=spacing, name=name)
 
 
+def points_values(points, values):
+    """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
+    p = np.asarray(points, dtype=float)
+    f = np.asarray(values, dtype=float)
+    if p.ndim != 2 or p.shape[1] != 3:
+        raise InputError(f"points must have shape (N, 3), got {p.shape}")
+    if f.shape != (p.shape[0],):
+        raise InputError(f"values must have shape ({p.shape[0]},) to match the points, got {f.shape}")
+    return p, f
+
+
 def scattered(points, values, name="data") -> PointData:
     """Validate scattered input (points ``N x 3`` and ``N`` values).
 
@@ -198,12 +209,7 @@ def scattered(points, values, name="data") -> PointData:
     point sets that do not span 3-D space (all coplanar), each with a one-line
     :class:`~trivsel.errors_input.InputError` naming the bad value.
     """
-    p = np.asarray(points, dtype=float)
-    f = np.asarray(values, dtype=float)
-    if p.ndim != 2 or p.shape[1] != 3:
-        raise InputError(f"points must have shape (N, 3), got {p.shape}")
-    if f.shape != (p.shape[0],):
-        raise InputError(f"values must have shape ({p.shape[0]},) to match the points, got {f.shape}")
+    p, f = points_values(points, values)
     if p.shape[0] < 5:
         raise InputError(f"too few points: need at least 5 for a 3-D triangulation, got {p.shape[0]}")
     if not np.all(np.isfinite(p)):

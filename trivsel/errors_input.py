@@ -1,5 +1,7 @@
 """The one exception type for bad input: a one-line message naming the problem and the value."""
 
+import numbers
+
 
 class InputError(ValueError):
     """Bad user input (NaN, duplicates, too few or coplanar points, bad fraction, ...).
@@ -7,3 +9,10 @@ class InputError(ValueError):
     The CLI prints ``trivsel: error: <message>`` on one line and exits with status 2,
     writing no output files.
     """
+
+
+def check_threads(threads):
+    """``threads`` as an int >= 1; one-line InputError otherwise."""
+    if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
+        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+    return int(threads)

@@ -168,11 +168,6 @@ def _orient(S, a, b, c, d):
 
 
 @njit(cache=True)
-def _volume(S, a, b, c, d):
-    return _vol(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, c, d)
-
-
-@njit(cache=True)
 def _locate_in(S, q0, q1, q2, q3, p):
     """:func:`_locate` on the state tuple (for checks and tests; not for inner loops)."""
     return _locate(S[_IC], S[_P], S[_F], S[_FOPT][O_USEINT] > 0.0, q0, q1, q2, q3, p)
@@ -483,14 +478,11 @@ def _replace(S, old, nold, newq, nnew, new_hull):
 @njit(cache=True)
 def _positive(S, newq, nnew):
     """Admissibility: every new tet has strictly positive volume."""
-    return _positive_at(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, newq, nnew)
-
-
-@njit(cache=True, inline="always")
-def _positive_at(I, P, ui, newq, nnew):
-    """:func:`_positive` on the coordinate arrays (for :func:`swap`'s loop)."""
+    I_ = S[_IC]
+    P_ = S[_P]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
     for k in range(nnew):
-        if _sign(I, P, ui, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
+        if _sign(I_, P_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
             return False
     return True
 
@@ -709,13 +701,8 @@ def config23(S, t, i, old, newq):
     Fills old[:2] and newq[:3] with (f1, f2, e, d), (f2, f3, e, d), (f3, f1, e, d);
     returns False when face i is on the hull.
     """
-    return _config23(S[_TETS], S[_NBR], t, i, old, newq)
-
-
-@njit(cache=True, inline="always")
-def _config23(tets, nbr, t, i, old, newq):
-    """:func:`config23` on the arrays (for :func:`swap`'s loop)."""
-    u = nbr[t, i]
+    tets = S[_TETS]
+    u = S[_NBR][t, i]
     if u < 0:
         return False
     d = tets[t, i]
@@ -1070,8 +1057,8 @@ def swap(S, seed, nseed, with_neighbours):
                 u = nbr[t, i]
                 if u < 0 or (om[u] == st and u < t):
                     continue
-                _config23(tets, nbr, t, i, old, newq)
-                if not _positive_at(I_, P_, ui_, newq, 3):
+                config23(S, t, i, old, newq)
+                if not _positive(S, newq, 3):
                     continue
                 _config_key(tver, 0, -1, -1, old, 2, key)
                 slot, found = _cache_slot(hkey, key)
@@ -1128,7 +1115,7 @@ def swap(S, seed, nseed, with_neighbours):
                     else:
                         quads44(a, b, ring, alt, newq)
                         nn = 4
-                    if not _positive_at(I_, P_, ui_, newq, nn):
+                    if not _positive(S, newq, nn):
                         continue
                     if k == 3:
                         _config_key(tver, 1, -1, -1, old, 3, key)

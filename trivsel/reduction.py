@@ -19,7 +19,7 @@ import numpy as np
 from . import mesh as _mesh
 from .data import PointData, resolve_function, sample_grid
 from .errors import error_norms
-from .errors_input import InputError
+from .errors_input import InputError, check_threads
 from .selection import TIE_ORDERS, candidate_points, count_for_fraction, rank_candidates, validate_fractions
 from .triangulation import (box_tetrahedra, cube_corners, delaunay_tetrahedra, edge_neighbours, hull_triangles,
                             kuhn_edge_neighbours, kuhn_tetrahedra, neighbour_graph)
@@ -238,8 +238,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     _check_choice("ranking", ranking, ("curvature", "ascending", "random", "analytic"))
     if ranking == "analytic" and not ("function" in data.meta):
         raise InputError("ranking 'analytic' needs a Table-1 function (--function), not a data file")
-    if isinstance(threads, bool) or not isinstance(threads, (int, np.integer)) or threads < 1:
-        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+    threads = check_threads(threads)
     fractions = validate_fractions(fractions)
     values_modes = [values] if isinstance(values, str) else list(values)
     if not values_modes:
