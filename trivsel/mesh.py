@@ -161,6 +161,7 @@ def _locate(I, P, F, ui, q0, q1, q2, q3, p):
                       p, q0, q1, q2, q3)
 
 
+
 @njit(cache=True)
 def _orient(S, a, b, c, d):
     """:func:`_sign` on the state tuple (for checks and tests; not for inner loops)."""
@@ -225,18 +226,17 @@ def _compact_pool(S):
     blen = S[_BLEN]
     pool = S[_POOL]
     hw = ctr[C_HW]
-    live = np.empty(hw, np.int64)
-    n = 0
+    # live buckets in the order of their starts: buckets are disjoint, so each start
+    # has at most one owner (a scan instead of a sort)
+    owner = np.full(ctr[C_POOLTOP], -1, np.int64)
     for t in range(hw):
         if alive[t] and blen[t] > 0:
-            live[n] = t
-            n += 1
-    live = live[:n]
-    order = np.argsort(bstart[live])
+            owner[bstart[t]] = t
     top = 0
-    for k in range(n):
-        t = live[order[k]]
-        s = bstart[t]
+    for s in range(owner.shape[0]):
+        t = owner[s]
+        if t < 0:
+            continue
         L = blen[t]
         for j in range(L):
             pool[top + j] = pool[s + j]
@@ -288,6 +288,37 @@ def _sorted3(a, b, c):
     if a > b:
         a, b = b, a
     return a, b, c
+
+
+@njit(cache=True)
+def _copy1(dst, src, n):
+    """``dst[:n] = src[:n]`` as a loop: an array assignment makes numba compile its
+    shape-mismatch error message (string formatting, about 2 s, once)."""
+    for j in range(n):
+        dst[j] = src[j]
+
+
+@njit(cache=True)
+def _copy2(dst, src, n):
+    """``dst[:n] = src[:n]`` on 2-D arrays (rows), as a loop (see :func:`_copy1`)."""
+    for j in range(n):
+        for c in range(src.shape[1]):
+            dst[j, c] = src[j, c]
+
+
+@njit(cache=True)
+def _sorted_copy(a, n):
+    """``np.sort(a[:n])`` for the few ids of a configuration (insertion sort; numba's
+    quicksort costs about a second of compilation)."""
+    out = np.empty(n, a.dtype)
+    for i in range(n):
+        v = a[i]
+        j = i
+        while j > 0 and out[j - 1] > v:
+            out[j] = out[j - 1]
+            j -= 1
+        out[j] = v
+    return out
 
 
 @njit(cache=True)
@@ -511,7 +542,7 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
     ownvert = S[_FOPT][O_OWNVERT] > 0.0
     # the old tets in ascending id order: the sums then do not depend on the tet the
     # configuration was found from, to the last bit (equal gains stay equal)
-    old = np.sort(old[:nold])
+    old = _sorted_copy(old, nold)
     m = _gather(S, old, nold)
     buf = S[_WBUF]
     F = S[_F]
@@ -609,7 +640,7 @@ def insert_point(S, p):
                     if ncav == cav.shape[0]:
                         cav = np.concatenate((cav, np.empty(ncav, np.int64)))
                         sg2 = np.empty((2 * ncav, 4), np.int64)
-                        sg2[:ncav] = sg
+                        _copy2(sg2, sg, ncav)
                         sg = sg2
                     cav[ncav] = u
                     ncav += 1
@@ -875,7 +906,7 @@ def _push_unique(buf, n, v, om, stamp):
     om[v] = stamp
     if n == buf.shape[0]:
         nb = np.empty(2 * n, np.int64)
-        nb[:n] = buf
+        _copy1(nb, buf, n)
         buf = nb
     buf[n] = v
     return buf, n + 1
@@ -968,8 +999,10 @@ def _cache_grow(hkey, hval):
     for s in range(hkey.shape[0]):
         if hkey[s, 0] != -1:
             s2, _ = _cache_slot(k2, hkey[s])
-            k2[s2] = hkey[s]
-            v2[s2] = hval[s]
+            for c in range(_KEYLEN):
+                k2[s2, c] = hkey[s, c]
+            for c in range(hval.shape[1]):
+                v2[s2, c] = hval[s, c]
     return k2, v2
 
 
@@ -1073,8 +1106,8 @@ def swap(S, seed, nseed, with_neighbours):
                     best_kind = 0
                     best_nold = 2
                     best_nnew = 3
-                    best_old[:2] = old[:2]
-                    best_new[:3] = newq[:3]
+                    _copy1(best_old, old, 2)
+                    _copy2(best_new, newq, 3)
                     if first:
                         done = True
                         break
@@ -1092,8 +1125,8 @@ def swap(S, seed, nseed, with_neighbours):
                         best_kind = 3
                         best_nold = 2
                         best_nnew = 2
-                        best_old[:2] = old[:2]
-                        best_new[:2] = newq[:2]
+                        _copy1(best_old, old, 2)
+                        _copy2(best_new, newq, 2)
                         if first:
                             done = True
                             break
@@ -1133,8 +1166,8 @@ def swap(S, seed, nseed, with_neighbours):
                         best_kind = 1 if k == 3 else 2
                         best_nold = k
                         best_nnew = nn
-                        best_old[:k] = old[:k]
-                        best_new[:nn] = newq[:nn]
+                        _copy1(best_old, old, k)
+                        _copy2(best_new, newq, nn)
                         if first:
                             done = True
                             break
@@ -1553,6 +1586,9 @@ def _pin_signatures(S):
         (_crit, (f8, f8, f8, i8)),
         (_other_index, (m4, i8, i8, i8, i8)),
         (_push_unique, (v8, i8, i8, v8, i8)),
+        (_copy1, (v8, v8, i8)),
+        (_copy2, (m8, m8, i8)),
+        (_sorted_copy, (v8, i8)),
         (_gather, (st, v8, i8)),
         (_positive, (st, m8, i8)),
         (_evaluate, (st, v8, i8, m8, i8, f8, f8)),

@@ -24,7 +24,7 @@ _SPLITTER = 134217729.0  # 2^27 + 1
 _O3D_ERRBOUND = (7.0 + 56.0 * _EPS) * _EPS
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def orient3d_value(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     """``det[b - a, c - a, d - a]``: exact on int64 coordinates (numba compiles an int64
     version), the plain float determinant on doubles (approximate; for weights)."""
@@ -48,7 +48,7 @@ orient3d_float = orient3d_value
 
 # --- expansion arithmetic (Shewchuk 1997), used only when the filter fails -------
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _two_sum(a, b):
     x = a + b
     bv = x - a
@@ -56,14 +56,14 @@ def _two_sum(a, b):
     return x, (a - av) + (b - bv)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _split(a):
     c = _SPLITTER * a
     hi = c - (c - a)
     return hi, a - hi
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _two_product(a, b):
     x = a * b
     ahi, alo = _split(a)
