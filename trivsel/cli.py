@@ -1,10 +1,11 @@
-"""Command-line interface: ``trivsel reduce`` and ``trivsel compare``.
+"""Command-line interface: ``trivsel reduce``, ``trivsel compare`` and ``trivsel compile``.
 
 The workflow, the benchmarks and CI depend on these names::
 
     trivsel reduce --function 4 --n 16 --fractions 0.5 0.2 0.1 --out DIR
     trivsel reduce INPUT [--array NAME] --fractions 0.5 0.2 0.1 --out DIR
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
+    trivsel compile [--method paper] [--part 0|1]
 
 Bad input gives one line ``trivsel: error: ...`` on stderr, exit status 2 and no
 output files.
@@ -86,6 +87,14 @@ def build_parser():
                         "does not depend on it)")
     _add_option_args(r)
 
+    k = sub.add_parser("compile", help="compile the numba kernels into the on-disk cache (once per machine)",
+                       description="A reduction compiles its kernels on first use (about 25 s once; they load "
+                                   "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
+                                   "(swapping; insertion) in two processes side by side, as the workflow's "
+                                   "kernels rule does; without --part, everything.")
+    k.add_argument("--method", default="paper", choices=["paper", "greedy"])
+    k.add_argument("--part", type=int, choices=[0, 1], help="one half only (default: both and the driver)")
+
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
                        description="Cells are matched on their key columns and compared with "
                                    "|new - golden| <= atol + rtol * |golden|.")
@@ -149,6 +158,18 @@ def _cmd_reduce(a):
     return 0
 
 
+def _cmd_compile(a):
+    import time
+
+    from .mesh import compile_kernels
+
+    t0 = time.perf_counter()
+    n = compile_kernels(a.method, a.part)
+    part = "both halves and the driver" if a.part is None else f"part {a.part}"
+    print(f"compiled or loaded {n} kernel signatures ({a.method}, {part}) in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
 def _cmd_compare(a):
     from .compare import compare_tables, format_mismatches
 
@@ -171,6 +192,8 @@ def main(argv=None):
     try:
         if a.command == "reduce":
             return _cmd_reduce(a)
+        if a.command == "compile":
+            return _cmd_compile(a)
         if a.command == "compare":
             return _cmd_compare(a)
     except InputError as exc:

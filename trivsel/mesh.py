@@ -1012,7 +1012,8 @@ def _cache_store(hkey, hval, hn, slot, key, before, after):
     table (grown when half full) and its count."""
     if hn >= _CACHE_MAX:
         return hkey, hval, hn
-    hkey[slot] = key
+    for c in range(_KEYLEN):
+        hkey[slot, c] = key[c]
     hn += 1
     hval[slot, 0] = before
     hval[slot, 1] = after
@@ -1516,8 +1517,10 @@ def point_weights(S, verts, weights):
 def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
                abs_tol=None, tol_inf=None, first_improving=False, max_rounds=100000,
                tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None,
-               boundary_flips=False):
-    """Allocate the flat arrays of an empty mesh over the given original points."""
+               boundary_flips=False, pin=True):
+    """Allocate the flat arrays of an empty mesh over the given original points.
+
+    ``pin=False`` skips :func:`_pin_signatures` (for :func:`compile_kernels`)."""
     # C-contiguous and writable, so that every state has the same numba type
     P = np.require(points, np.float64, ["C", "W"])
     F = np.require(values, np.float64, ["C", "W"])
@@ -1550,11 +1553,49 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
          np.zeros(N, np.int32), np.zeros(24, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64),
          np.full(cap, -1, np.int32), np.zeros(cap), np.zeros(cap, np.int64),
          np.zeros(2 * cap), np.zeros(2 * cap, np.int64), np.zeros(2 * cap, np.int64), cand)
-    _pin_signatures(S)
+    if pin:
+        _pin_signatures(S)
     return S
 
 
 _PINNED = set()  # state types the helpers are compiled for
+
+
+def _helper_signatures(S):
+    """The internal helpers and their one signature (int64 indices), callees before
+    callers, for the state type of ``S``."""
+    from numba import typeof, types as nt
+
+    st = typeof(S)
+    i8, b1, f8 = nt.int64, nt.boolean, nt.float64
+    v8, m8, m4 = nt.int64[::1], nt.int64[:, ::1], nt.int32[:, ::1]
+    f82 = nt.float64[:, ::1]
+    return [
+        (_sign, (m8, f82, b1, i8, i8, i8, i8)),
+        (_vol, (m8, f82, b1, i8, i8, i8, i8)),
+        (_crit, (f8, f8, f8, i8)),
+        (_other_index, (m4, i8, i8, i8, i8)),
+        (_push_unique, (v8, i8, i8, v8, i8)),
+        (_copy1, (v8, v8, i8)),
+        (_copy2, (m8, m8, i8)),
+        (_sorted_copy, (v8, i8)),
+        (_gather, (st, v8, i8)),
+        (_positive, (st, m8, i8)),
+        (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
+        (_set_best, (st, i8, i8, f8)),
+        (_replace, (st, v8, i8, m8, i8, b1)),
+        (_config_key, (v8, i8, i8, i8, v8, i8, v8)),
+        (_cache_slot, (m8, v8)),
+        (_cache_store, (m8, f82, i8, i8, v8, f8, f8)),
+        (swap, (st, v8, i8, b1)),  # last: it calls the helpers above
+    ]
+
+
+def _pin(fn, sig):
+    """Compile (or load from the cache) ``fn`` for ``sig`` and forbid other variants."""
+    fn.disable_compile(False)
+    fn.compile(sig)
+    fn.disable_compile(True)
 
 
 def _pin_signatures(S):
@@ -1570,40 +1611,81 @@ def _pin_signatures(S):
     Runs in :func:`make_state` (once per state type), so ``import trivsel`` stays
     cheap; each signature comes from the on-disk cache after the first run.
     """
-    from numba import typeof, types as nt
+    from numba import typeof
 
     if not hasattr(swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: plain Python functions
         return
     st = typeof(S)
     if st in _PINNED:
         return
-    i8, b1, f8 = nt.int64, nt.boolean, nt.float64
-    v8, m8, m4 = nt.int64[::1], nt.int64[:, ::1], nt.int32[:, ::1]
-    f82 = nt.float64[:, ::1]
-    sigs = [
-        (_sign, (m8, f82, b1, i8, i8, i8, i8)),
-        (_vol, (m8, f82, b1, i8, i8, i8, i8)),
-        (_crit, (f8, f8, f8, i8)),
-        (_other_index, (m4, i8, i8, i8, i8)),
-        (_push_unique, (v8, i8, i8, v8, i8)),
-        (_copy1, (v8, v8, i8)),
-        (_copy2, (m8, m8, i8)),
-        (_sorted_copy, (v8, i8)),
-        (_gather, (st, v8, i8)),
-        (_positive, (st, m8, i8)),
-        (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
-        (_replace, (st, v8, i8, m8, i8, b1)),
-        (_set_best, (st, i8, i8, f8)),
-        (swap, (st, v8, i8, b1)),
-        (_config_key, (v8, i8, i8, i8, v8, i8, v8)),
-        (_cache_slot, (m8, v8)),
-        (_cache_store, (m8, f82, i8, i8, v8, f8, f8)),
-    ]
-    for fn, sig in sigs:
-        fn.disable_compile(False)
-        fn.compile(sig)
-        fn.disable_compile(True)
+    for fn, sig in _helper_signatures(S):
+        _pin(fn, sig)
     _PINNED.add(st)
+
+
+#: The helpers that only :func:`swap` calls (the second half of :func:`compile_kernels`).
+_SWAP_ONLY = ("_push_unique", "_positive", "_evaluate", "_config_key", "_cache_slot", "_cache_store", "swap")
+
+
+def compile_kernels(method="paper", part=None):
+    """Compile the numba kernels of a reduction into numba's on-disk cache.
+
+    A reduction compiles its kernels on first use anyway (about 25 s once per
+    machine, then they load from the cache in ``__pycache__``).  This splits the
+    work into two halves that share little, so that two processes fill the cache
+    in about half the time: the workflow's ``kernels`` rule runs ``trivsel compile
+    --part 0`` and ``--part 1`` side by side before the reductions fan out.
+
+    Parameters
+    ----------
+    method : {"paper", "greedy"}
+        Which driver the kernels are for (:func:`run_insertions` or :func:`run_greedy`).
+    part : {None, 0, 1}
+        ``1``: point insertion (section 4: in a tet, on a face, on an edge), the
+        replacement of tets it shares with swapping (compiled first, so that part 0
+        finds it in the cache), bucket filling and residuals.  ``0``: swapping
+        (section 4: 2-3, 3-2, 4-4 flips) and the configuration evaluation.
+        ``None``: both, then the driver: everything a reduction compiles.
+
+    Returns
+    -------
+    int
+        The number of (kernel, signature) pairs compiled or loaded.
+    """
+    from numba import typeof, types as nt
+
+    if method not in ("paper", "greedy"):
+        raise ValueError(f"unknown method {method!r}: choose 'paper' or 'greedy'")
+    if part not in (None, 0, 1):
+        raise ValueError(f"unknown part {part!r}: choose 0, 1 or None (both)")
+    if not hasattr(swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
+        return 0
+    ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
+    S = make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
+    st = typeof(S)
+    helpers = _helper_signatures(S)
+    i8, f8, v8 = nt.int64, nt.float64, nt.int64[::1]
+    # cheap leaves first (both halves), then each half's own subtree, callees first
+    leaves = [h for h in helpers if h[0] in (_sign, _vol, _crit, _other_index, _copy1, _copy2,
+                                             _sorted_copy, _gather)]
+    replace = [h for h in helpers if h[0] in (_set_best, _replace)]
+    swapping = [h for h in helpers if h[0].__name__ in _SWAP_ONLY and h[0] is not swap]
+    swapping += replace + [h for h in helpers if h[0] is swap]
+    insertion = replace + [(fill_buckets, (st, v8)), (residuals, (st, nt.float64[::1])),
+                           (insert_point, (st, i8)), (cone_from_hull, (st, i8))]
+    driver = ((run_greedy, (st, i8, f8, f8, v8)) if method == "greedy"
+              else (run_insertions, (st, v8, i8, i8, f8, f8)))
+    pinned = {fn for fn, _ in helpers}
+    plan = leaves + (swapping if part == 0 else insertion if part == 1 else
+                     swapping + insertion[len(replace):] + [driver])
+    for fn, sig in plan:
+        if fn in pinned:
+            _pin(fn, sig)
+        else:
+            fn.compile(sig)
+    if part is None:
+        _PINNED.add(st)
+    return len(plan)
 
 
 def face_neighbours(tets):

@@ -110,7 +110,7 @@ def orient3d_exact_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     w[1, 0], w[1, 1] = _two_sum(dy, -ay)
     w[2, 0], w[2, 1] = _two_sum(dz, -az)
     e = np.zeros(6 * 8 * 4 + 1)
-    n = 0
+    n = np.int64(0)  # not Literal[int](0): one compiled _grow
     # det = sum over permutations (i, j, k) of sign * u_i v_j w_k
     perms = ((0, 1, 2, 1.0), (1, 2, 0, 1.0), (2, 0, 1, 1.0),
              (0, 2, 1, -1.0), (2, 1, 0, -1.0), (1, 0, 2, -1.0))

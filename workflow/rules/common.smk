@@ -112,6 +112,12 @@ def reduce_cli_args(options):
     return args
 
 
+def kernel_markers(wildcards):
+    """The two halves of `trivsel compile` for the method of the run's variant."""
+    method = VARIANTS[wildcards.variant]["method"]
+    return [f"results/kernels/{method}_part{part}.txt" for part in (0, 1)]
+
+
 def run_dir(n, variant, function):
     return f"results/runs/n{n}/{variant}/f{function}"
 
