@@ -60,7 +60,7 @@ EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int6
 
 # ----------------------------------------------------------------------------- predicates
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _sign(I, P, ui, a, b, c, d):
     """Sign of orient3d of original points a, b, c, d: exact on the integer grid
     coordinates ``I`` when ``ui``, robust on the float coordinates ``P`` otherwise.
@@ -76,7 +76,7 @@ def _sign(I, P, ui, a, b, c, d):
                                P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _vol(I, P, ui, a, b, c, d):
     """orient3d value as float: exact integer on grids, float determinant otherwise."""
     if ui:
@@ -269,7 +269,7 @@ def _gather(S, old, nold):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _other_index(tets, u, a, b, c):
     """Local index of the vertex of tet u that is not a, b or c."""
     for j in range(4):
@@ -512,7 +512,7 @@ def _positive(S, newq, nnew):
     return _positive_at(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, newq, nnew)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _positive_at(I_, P_, ui_, newq, nnew):
     """:func:`_positive` on the coordinate arrays (for :func:`swap`'s loop: every array
     taken out of the state tuple costs a reference-count update per call)."""
@@ -543,7 +543,7 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
                         np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _evaluate_at(I_, P_, F, fopt, ctr, mark, buf, pool, bstart, blen, resid, tsse, tmax, tcnt,
                  srt, old, nold, newq, nnew, reltol, abstol):
     """:func:`_evaluate` on the arrays it reads (``srt``: room for the sorted ids).
@@ -766,7 +766,7 @@ def config23(S, t, i, old, newq):
     return _config23_at(S[_TETS], S[_NBR], t, i, old, newq)
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _config23_at(tets, nbr, t, i, old, newq):
     """:func:`config23` on the mesh arrays (see :func:`_positive_at`)."""
     u = nbr[t, i]
@@ -785,7 +785,7 @@ def _config23_at(tets, nbr, t, i, old, newq):
     return True
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _edge_opposite(tets, I, P, ui, t, a, b):
     """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0.
 
@@ -818,7 +818,7 @@ def edge_ring(S, t, a, b, old, ring):
     return _edge_ring(S[_TETS], S[_NBR], S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b, old, ring)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, _nrt=False)
 def _edge_ring(tets, nbr, I, P, ui, t, a, b, old, ring):
     """:func:`edge_ring` on the arrays themselves: :func:`swap` walks six edges of every
     tet of O each round, and taking the arrays out of the state tuple per walk was
@@ -854,10 +854,14 @@ def edge_ring_open(S, t, a, b, old, ring):
     as in :func:`edge_ring`) and returns k, or -1 if the edge is interior or the
     ring is longer than old.shape[0].
     """
-    tets = S[_TETS]
-    nbr = S[_NBR]
+    return _edge_ring_open_at(S[_TETS], S[_NBR], S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b, old, ring)
+
+
+@njit(cache=True, _nrt=False)
+def _edge_ring_open_at(tets, nbr, I, P, ui, t, a, b, old, ring):
+    """:func:`edge_ring_open` on the arrays themselves (see :func:`_evaluate_at`)."""
     cap = old.shape[0]
-    x, y = _edge_opposite(tets, S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b)
+    x, y = _edge_opposite(tets, I, P, ui, t, a, b)
     # walk backwards (across the face (a, b, x)) to the first tet of the open ring
     cur = t
     steps = 0
@@ -956,28 +960,39 @@ def _with_room(buf, n, extra):
     return nb
 
 
-@njit(cache=True)
-def _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol):
-    """Gain of the boundary 2-2 flip of hull edge (a, b), or 0 if not admissible or not
-    improving enough.  A hull edge between two coplanar hull faces with two tets around
-    it is flipped to the other diagonal of the planar quad (a, r0, b, r2).  Fills
-    old[:2] and newq[:2]."""
-    old2 = np.empty(2, np.int64)
-    k2 = edge_ring_open(S, t, a, b, old2, ring)
-    if k2 != 2 or _sign(S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, a, b, ring[0], ring[2]) != 0:
-        return 0.0
+@njit(cache=True, _nrt=False)
+def _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen, eresid, etsse,
+                etmax, etcnt, srt, tver, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, om, st,
+                reltol, abstol):
+    """(gain, count of the evaluation memory) of the boundary 2-2 flip of hull edge
+    (a, b); the gain is 0 if the flip is not admissible or not improving enough.  A
+    hull edge between two coplanar hull faces with two tets around it is flipped to
+    the other diagonal of the planar quad (a, r0, b, r2).  Fills old[:2] and newq[:2].
+    Evaluations go to :func:`swap`'s memory like the others (kind 3).  A function of its own, not a branch in :func:`swap`'s loop:
+    written inline, this rare case made the whole loop 1.5-1.9x slower."""
+    ui_ = fopt[O_USEINT] > 0.0
+    k2 = _edge_ring_open_at(tets, nbr, I_, P_, ui_, t, a, b, old2, ring)
+    if k2 != 2 or _sign(I_, P_, ui_, a, b, ring[0], ring[2]) != 0:
+        return 0.0, hn
     if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
-        return 0.0  # evaluated from its smaller tet
+        return 0.0, hn  # evaluated from its smaller tet
     quads32(a, b, ring, newq)
-    if not _positive(S, newq, 2):
-        return 0.0
+    if not _positive_at(I_, P_, ui_, newq, 2):
+        return 0.0, hn
     old[0] = old2[0]
     old[1] = old2[1]
-    before, after = _evaluate(S, old, 2, newq, 2, reltol, abstol)
+    _config_key(tver, 3, -1, -1, old, 2, key)
+    slot, found = _cache_slot(hkey, key)
+    if found:
+        before, after = hval[slot, 0], hval[slot, 1]
+    else:
+        before, after = _evaluate_at(I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen, eresid,
+                                     etsse, etmax, etcnt, srt, old, 2, newq, 2, reltol, abstol)
+        hn = _cache_store(hkey, hval, hn, slot, key, before, after)
     gain = before - after
     if gain > reltol * before + abstol:
-        return gain
-    return 0.0
+        return gain, hn
+    return 0.0, hn
 
 
 # A swap call evaluates the configurations of O round after round (Definition 3), and
@@ -988,12 +1003,13 @@ def _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol):
 # the key below identifies it exactly.
 #
 #   key = (kind, d0, d1, id0, id1, id2, id3, ver0, ver1, ver2, ver3)
-#          kind: 0 = 2-3, 1 = 3-2, 2 = 4-4 with new diagonal (d0, d1); ids sorted, -1 padded
+#          kind: 0 = 2-3, 1 = 3-2, 2 = 4-4 with new diagonal (d0, d1), 3 = boundary 2-2;
+#          ids sorted, -1 padded
 _KEYLEN = 11
 _CACHE_MAX = 1 << 18  # entries; a larger swap (the global pass) evaluates without caching
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _config_key(tver, kind, d0, d1, old, nold, key):
     """Fill ``key`` with the canonical key of a configuration (see above)."""
     key[0] = kind
@@ -1013,7 +1029,7 @@ def _config_key(tver, kind, d0, d1, old, nold, key):
         key[7 + k] = tver[key[3 + k]]
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _cache_slot(hkey, key):
     """Open-addressing lookup: (slot, found) of ``key`` in the table ``hkey`` (row 0 = -1: empty)."""
     mask = hkey.shape[0] - 1
@@ -1034,9 +1050,11 @@ def _cache_slot(hkey, key):
 
 
 @njit(cache=True)
-def _cache_grow(hkey, hval):
-    """The table at twice the size, entries rehashed."""
-    n2 = 2 * hkey.shape[0]
+def _cache_grow(hkey, hval, need):
+    """The table, doubled until ``need`` entries fill at most half of it, rehashed."""
+    n2 = hkey.shape[0]
+    while 2 * need > n2:
+        n2 *= 2
     k2 = np.empty((n2, _KEYLEN), np.int64)
     k2[:, 0] = -1
     v2 = np.empty((n2, hval.shape[1]), np.float64)
@@ -1050,11 +1068,10 @@ def _cache_grow(hkey, hval):
     return k2, v2
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _cache_store(hkey, hval, hn, slot, key, before, after):
     """Store an evaluation at the empty ``slot`` (from :func:`_cache_slot`); returns the
-    new count.  The caller grows the table (:func:`_cache_grow`) when it is half full:
-    returning the arrays from here would cost reference counting on every store."""
+    new count.  :func:`swap` makes room for a whole round beforehand (:func:`_cache_grow`)."""
     if hn >= _CACHE_MAX:
         return hn
     for c in range(_KEYLEN):
@@ -1118,11 +1135,18 @@ def swap(S, seed, nseed, with_neighbours):
     hn = 0
     key = np.empty(_KEYLEN, np.int64)
     srt = np.empty(4, np.int64)
+    old2 = np.empty(2, np.int64)
     # the arrays _evaluate_at reads, taken out of the state tuple once
     F_, ectr, emark, ebuf, epool = S[_F], S[_CTR], S[_MARK], S[_WBUF], S[_POOL]
     ebstart, eblen, eresid, etsse, etmax, etcnt = S[_BSTART], S[_BLEN], S[_RESID], S[_TSSE], S[_TMAX], S[_TCNT]
     nflips = 0
     for rnd in range(maxrounds):
+        # room for all the configurations this round can store (at most 16 per tet of
+        # O), so that the table is never replaced inside the loops below: an array
+        # variable reassigned in a loop costs reference counting on every iteration
+        # (greedy 65^3: about 10 % of the run)
+        if hn < _CACHE_MAX and 2 * (hn + 16 * no) > hkey.shape[0]:
+            hkey, hval = _cache_grow(hkey, hval, min(hn + 16 * no, _CACHE_MAX))
         best_gain = 0.0
         best_kind = -1
         best_nold = 0
@@ -1149,8 +1173,6 @@ def swap(S, seed, nseed, with_neighbours):
                                                  eresid, etsse, etmax, etcnt, srt, old, 2, newq, 3,
                                                  reltol, abstol)
                     hn = _cache_store(hkey, hval, hn, slot, key, before, after)
-                    if 2 * hn > hkey.shape[0]:
-                        hkey, hval = _cache_grow(hkey, hval)
                 gain = before - after
                 if gain > reltol * before + abstol and gain > best_gain:
                     best_gain = gain
@@ -1170,7 +1192,9 @@ def swap(S, seed, nseed, with_neighbours):
                 b = tets[t, EDGES[e, 1]]
                 k = _edge_ring(tets, nbr, I_, P_, ui_, t, a, b, old, ring)
                 if k == -1 and bflip:
-                    g = _try_flip22(S, t, a, b, old, ring, newq, om, st, reltol, abstol)
+                    g, hn = _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen,
+                                        eresid, etsse, etmax, etcnt, srt, tver, hkey, hval, hn, key, t, a, b,
+                                        old, old2, ring, newq, om, st, reltol, abstol)
                     if g > best_gain:
                         best_gain = g
                         best_kind = 3
@@ -1213,8 +1237,6 @@ def swap(S, seed, nseed, with_neighbours):
                                                      eblen, eresid, etsse, etmax, etcnt, srt, old, k, newq,
                                                      nn, reltol, abstol)
                         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
-                        if 2 * hn > hkey.shape[0]:
-                            hkey, hval = _cache_grow(hkey, hval)
                     gain = before - after
                     if gain > reltol * before + abstol and gain > best_gain:
                         best_gain = gain

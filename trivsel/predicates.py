@@ -88,7 +88,7 @@ def _grow(e, n, b):
     return m
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=True)  # it allocates: explicit, so callers compiled without NRT may call it
 def orient3d_exact_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     """Exact sign of ``det[b - a, c - a, d - a]`` for double inputs (expansion arithmetic).
 
