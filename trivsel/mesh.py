@@ -1427,7 +1427,7 @@ def residuals(S, out):
 
 # ----------------------------------------------------------------------------- greedy selection
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _heap_push(S, key, t, ver):
     """Push (key, tet, version) onto the array-backed binary max-heap."""
     hk = S[_HKEY]
@@ -1484,7 +1484,7 @@ def _heap_pop(S):
     return key, t, ver
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _heap_rebuild(S):
     """Drop stale entries: refill the heap from the live tets."""
     S[_CTR][C_HEAPN] = 0
@@ -1495,7 +1495,7 @@ def _heap_rebuild(S):
             _heap_push(S, _greedy_key(S, t), t, S[_TVER][t])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _set_best(S, t, best, bestr):
     S[_TBEST][t] = best
     S[_TBESTR][t] = bestr
@@ -1506,7 +1506,7 @@ def _set_best(S, t, best, bestr):
             _heap_push(S, _greedy_key(S, t), t, S[_TVER][t])
 
 
-@njit(cache=True)
+@njit(cache=True, _nrt=False)
 def _greedy_key(S, t):
     """Heap key of tet t: its worst residual (``greedy_key="max"``) or its squared-error sum ("sse")."""
     if S[_FOPT][O_GKEY] > 0.0:
