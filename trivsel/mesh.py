@@ -58,6 +58,22 @@ FACE_IN = np.array([[1, 3, 2], [0, 2, 3], [0, 3, 1], [0, 1, 2]], dtype=np.int64)
 EDGES = np.array([[0, 1], [0, 2], [0, 3], [1, 2], [1, 3], [2, 3]], dtype=np.int64)
 
 
+def _edge_parities():
+    """EDGE_EVEN[i, j]: whether the permutation (i, j, k, l) of local vertices, k < l the
+    other two, is even, i.e. orient3d(v_i, v_j, v_k, v_l) has the tet's own sign."""
+    even = np.zeros((4, 4), np.bool_)
+    for i in range(4):
+        for j in range(4):
+            if i != j:
+                perm = [i, j] + [m for m in range(4) if m not in (i, j)]
+                inversions = sum(perm[p] > perm[q] for p in range(4) for q in range(p + 1, 4))
+                even[i, j] = inversions % 2 == 0
+    return even
+
+
+EDGE_EVEN = _edge_parities()
+
+
 # ----------------------------------------------------------------------------- predicates
 
 @njit(cache=True, _nrt=False)
@@ -786,22 +802,28 @@ def _config23_at(tets, nbr, t, i, old, newq):
 
 
 @njit(cache=True, _nrt=False)
-def _edge_opposite(tets, I, P, ui, t, a, b):
+def _edge_opposite(tets, t, a, b):
     """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0.
 
-    Takes arrays and is inlined: it runs for every edge of every candidate tet, and a
-    call that pulled the arrays out of the state tuple doubled the greedy run time.
+    Every tet of the mesh is positively oriented (:mod:`trivsel.check` tests it), so
+    the sign is the parity of the local-index permutation (:data:`EDGE_EVEN`), not a
+    predicate: this runs for every edge of every tet of O in every swap round.
     """
+    i = -1
+    j = -1
     x = -1
     y = -1
-    for j in range(4):
-        v = tets[t, j]
-        if v != a and v != b:
-            if x < 0:
-                x = v
-            else:
-                y = v
-    if _sign(I, P, ui, a, b, x, y) < 0:
+    for m in range(4):
+        v = tets[t, m]
+        if v == a:
+            i = m
+        elif v == b:
+            j = m
+        elif x < 0:
+            x = v
+        else:
+            y = v
+    if not EDGE_EVEN[i, j]:
         x, y = y, x
     return x, y
 
@@ -815,16 +837,16 @@ def edge_ring(S, t, a, b, old, ring):
     Returns k for a closed ring (interior edge) of at most old.shape[0] tets, -1
     for an edge on the hull, or -2 for a longer ring.
     """
-    return _edge_ring(S[_TETS], S[_NBR], S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b, old, ring)
+    return _edge_ring(S[_TETS], S[_NBR], t, a, b, old, ring)
 
 
 @njit(cache=True, _nrt=False)
-def _edge_ring(tets, nbr, I, P, ui, t, a, b, old, ring):
+def _edge_ring(tets, nbr, t, a, b, old, ring):
     """:func:`edge_ring` on the arrays themselves: :func:`swap` walks six edges of every
     tet of O each round, and taking the arrays out of the state tuple per walk was
     the largest single cost of a greedy run (sampled)."""
     cap = old.shape[0]
-    x, y = _edge_opposite(tets, I, P, ui, t, a, b)
+    x, y = _edge_opposite(tets, t, a, b)
     # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
     k = 0
     cur = t
@@ -854,14 +876,14 @@ def edge_ring_open(S, t, a, b, old, ring):
     as in :func:`edge_ring`) and returns k, or -1 if the edge is interior or the
     ring is longer than old.shape[0].
     """
-    return _edge_ring_open_at(S[_TETS], S[_NBR], S[_IC], S[_P], S[_FOPT][O_USEINT] > 0.0, t, a, b, old, ring)
+    return _edge_ring_open_at(S[_TETS], S[_NBR], t, a, b, old, ring)
 
 
 @njit(cache=True, _nrt=False)
-def _edge_ring_open_at(tets, nbr, I, P, ui, t, a, b, old, ring):
+def _edge_ring_open_at(tets, nbr, t, a, b, old, ring):
     """:func:`edge_ring_open` on the arrays themselves (see :func:`_evaluate_at`)."""
     cap = old.shape[0]
-    x, y = _edge_opposite(tets, I, P, ui, t, a, b)
+    x, y = _edge_opposite(tets, t, a, b)
     # walk backwards (across the face (a, b, x)) to the first tet of the open ring
     cur = t
     steps = 0
@@ -971,7 +993,7 @@ def _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, 
     Evaluations go to :func:`swap`'s memory like the others (kind 3).  A function of its own, not a branch in :func:`swap`'s loop:
     written inline, this rare case made the whole loop 1.5-1.9x slower."""
     ui_ = fopt[O_USEINT] > 0.0
-    k2 = _edge_ring_open_at(tets, nbr, I_, P_, ui_, t, a, b, old2, ring)
+    k2 = _edge_ring_open_at(tets, nbr, t, a, b, old2, ring)
     if k2 != 2 or _sign(I_, P_, ui_, a, b, ring[0], ring[2]) != 0:
         return 0.0, hn
     if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
@@ -1190,7 +1212,7 @@ def swap(S, seed, nseed, with_neighbours):
             for e in range(6):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
-                k = _edge_ring(tets, nbr, I_, P_, ui_, t, a, b, old, ring)
+                k = _edge_ring(tets, nbr, t, a, b, old, ring)
                 if k == -1 and bflip:
                     g, hn = _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen,
                                         eresid, etsse, etmax, etcnt, srt, tver, hkey, hval, hn, key, t, a, b,
