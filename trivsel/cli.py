@@ -88,7 +88,7 @@ def build_parser():
     _add_option_args(r)
 
     k = sub.add_parser("compile", help="compile the numba kernels into the on-disk cache (once per machine)",
-                       description="A reduction compiles its kernels on first use (about 25 s once; they load "
+                       description="A reduction compiles its kernels on first use (about 21 s once; they load "
                                    "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
                                    "(swapping; insertion) in two processes side by side, as the workflow's "
                                    "kernels rule does; without --part, everything.")

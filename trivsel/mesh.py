@@ -1735,7 +1735,7 @@ _SWAP_ONLY = ("_push_unique", "_with_room", "_positive_at", "_positive", "_confi
 def compile_kernels(method="paper", part=None):
     """Compile the numba kernels of a reduction into numba's on-disk cache.
 
-    A reduction compiles its kernels on first use anyway (about 25 s once per
+    A reduction compiles its kernels on first use anyway (about 21 s once per
     machine, then they load from the cache in ``__pycache__``).  This splits the
     work into two halves that share little, so that two processes fill the cache
     in about half the time: the workflow's ``kernels`` rule runs ``trivsel compile

@@ -5,7 +5,7 @@
 
 rule kernels:
     """Compile the numba kernels of one method into numba's cache in two halves, side by
-    side, before the reductions fan out (trivsel compile --part; about 13 s instead of 25 s
+    side, before the reductions fan out (trivsel compile --part; about 12 s instead of 21 s
     on a fresh machine, a no-op load once they are cached)."""
     output:
         "results/kernels/{method}_part{part}.txt",
