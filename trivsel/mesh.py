@@ -20,6 +20,15 @@ residuals.  Nothing else writes ``nbr``.
 The state is a tuple of arrays (see :func:`make_state`) so that the compiled
 functions can be cached on disk; the Python class :class:`TetMesh` wraps it for
 tests and for :mod:`trivsel.reduction`.
+
+Speed rules learnt by sampling (``benchmarks/README.md``): numba increments and
+decrements the reference count of every array an ordinary function receives (29
+for the state tuple) and of every array variable reassigned in a loop.  So the
+helpers of the swap loop take the arrays they read (``*_at`` variants), allocate
+nothing and are compiled with ``_nrt=False`` (no reference counting at all), and
+nothing in :func:`swap`'s inner loops rebinds an array.  Helpers are compiled for
+one signature each (:func:`_pin_signatures`); :func:`compile_kernels` fills the
+on-disk cache in two halves.
 """
 
 from __future__ import annotations
