@@ -24,9 +24,9 @@ tests and for :mod:`trivsel.reduction`.
 Speed rules learnt by sampling (``benchmarks/README.md``): numba increments and
 decrements the reference count of every array an ordinary function receives (29
 for the state tuple) and of every array variable reassigned in a loop.  So the
-helpers of the swap loop take the arrays they read (``*_at`` variants), allocate
-nothing and are compiled with ``_nrt=False`` (no reference counting at all), and
-nothing in :func:`swap`'s inner loops rebinds an array.  Helpers are compiled for
+helpers of the swap loop (``*_at`` variants) allocate nothing and are compiled with
+``_nrt=False``: no reference counting at all, whether they receive arrays or the
+state tuple; and nothing in :func:`swap`'s inner loops rebinds an array.  Helpers are compiled for
 one signature each (:func:`_pin_signatures`); :func:`compile_kernels` fills the
 on-disk cache in two halves.
 """
@@ -273,14 +273,14 @@ def _compact_pool(S):
 @njit(cache=True)
 def _gather(S, old, nold):
     """Points of the old tets' buckets, each once, into S[_WBUF]; returns their count."""
-    ctr = S[_CTR]
+    return _gather_at(S[_CTR], S[_MARK], S[_WBUF], S[_POOL], S[_BSTART], S[_BLEN], old, nold)
+
+
+@njit(cache=True, _nrt=False)
+def _gather_at(ctr, mark, buf, pool, bstart, blen, old, nold):
+    """:func:`_gather` on the arrays it reads (no reference counting: see the module notes)."""
     ctr[C_STAMP] += 1
     st = ctr[C_STAMP]
-    mark = S[_MARK]
-    buf = S[_WBUF]
-    pool = S[_POOL]
-    bstart = S[_BSTART]
-    blen = S[_BLEN]
     m = 0
     for k in range(nold):
         t = old[k]
@@ -331,11 +331,10 @@ def _copy2(dst, src, n):
             dst[j, c] = src[j, c]
 
 
-@njit(cache=True)
-def _sorted_copy(a, n):
-    """``np.sort(a[:n])`` for the few ids of a configuration (insertion sort; numba's
-    quicksort costs about a second of compilation)."""
-    out = np.empty(n, a.dtype)
+@njit(cache=True, _nrt=False)
+def _sort_into(a, n, out):
+    """``out[:n] = np.sort(a[:n])`` for the few ids of a configuration (insertion sort;
+    numba's quicksort costs about a second of compilation)."""
     for i in range(n):
         v = a[i]
         j = i
@@ -343,7 +342,6 @@ def _sorted_copy(a, n):
             out[j] = out[j - 1]
             j -= 1
         out[j] = v
-    return out
 
 
 @njit(cache=True)
@@ -563,49 +561,32 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
     beat the best one found so far in the round was measured slower: such
     configurations must be evaluated again in the next round.)
     """
-    return _evaluate_at(S[_IC], S[_P], S[_F], S[_FOPT], S[_CTR], S[_MARK], S[_WBUF], S[_POOL],
-                        S[_BSTART], S[_BLEN], S[_RESID], S[_TSSE], S[_TMAX], S[_TCNT],
-                        np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol)
+    return _evaluate_at(S, np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol)
 
 
 @njit(cache=True, _nrt=False)
-def _evaluate_at(I_, P_, F, fopt, ctr, mark, buf, pool, bstart, blen, resid, tsse, tmax, tcnt,
-                 srt, old, nold, newq, nnew, reltol, abstol):
-    """:func:`_evaluate` on the arrays it reads (``srt``: room for the sorted ids).
-
-    For :func:`swap`'s loop: numba increments and decrements the reference count of
-    every array an ordinary (not inlined) function receives, including each of the
-    29 arrays of the state tuple; sampling the greedy run on 65^3 found about a third
-    of its time in those counts.
+def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol):
+    """:func:`_evaluate` with room ``srt`` for the sorted ids, allocating nothing, and
+    compiled without reference counting: :func:`swap` calls it in its loop, where the
+    29 arrays of the state tuple would otherwise be counted in and out per call
+    (about a third of a greedy run on 65^3, sampled).
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F = S[_F]
+    fopt = S[_FOPT]
     ui_ = fopt[O_USEINT] > 0.0
     crit = fopt[O_CRIT]
     ownvert = fopt[O_OWNVERT] > 0.0
     # the old tets in ascending id order: the sums then do not depend on the tet the
     # configuration was found from, to the last bit (equal gains stay equal)
-    for i in range(nold):  # insertion sort of at most four ids
-        v = old[i]
-        j = i
-        while j > 0 and srt[j - 1] > v:
-            srt[j] = srt[j - 1]
-            j -= 1
-        srt[j] = v
-    # their points, each once (:func:`_gather`, inline)
-    ctr[C_STAMP] += 1
-    st = ctr[C_STAMP]
-    m = 0
-    for k in range(nold):
-        t = srt[k]
-        s = bstart[t]
-        for j in range(blen[t]):
-            p = pool[s + j]
-            if mark[p] != st:
-                mark[p] = st
-                buf[m] = p
-                m += 1
+    _sort_into(old, nold, srt)
+    m = _gather_at(S[_CTR], S[_MARK], S[_WBUF], S[_POOL], S[_BSTART], S[_BLEN], srt, nold)
+    buf = S[_WBUF]
     before = 0.0
     after = 0.0
     if crit == 2.0:
+        resid = S[_RESID]
         for j in range(m):
             p = buf[j]
             before += resid[p] * resid[p]
@@ -623,7 +604,7 @@ def _evaluate_at(I_, P_, F, fopt, ctr, mark, buf, pool, bstart, blen, resid, tss
         return before, after
     for k in range(nold):
         t = srt[k]
-        before += _crit(crit, tsse[t], tmax[t], tcnt[t])
+        before += _crit(crit, S[_TSSE][t], S[_TMAX][t], S[_TCNT][t])
     thr = reltol * before + abstol
     for k in range(nnew):
         q0 = newq[k, 0]
@@ -992,17 +973,19 @@ def _with_room(buf, n, extra):
 
 
 @njit(cache=True, _nrt=False)
-def _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen, eresid, etsse,
-                etmax, etcnt, srt, tver, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, om, st,
-                reltol, abstol):
+def _try_flip22(S, srt, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, st, reltol, abstol):
     """(gain, count of the evaluation memory) of the boundary 2-2 flip of hull edge
     (a, b); the gain is 0 if the flip is not admissible or not improving enough.  A
     hull edge between two coplanar hull faces with two tets around it is flipped to
     the other diagonal of the planar quad (a, r0, b, r2).  Fills old[:2] and newq[:2].
-    Evaluations go to :func:`swap`'s memory like the others (kind 3).  A function of its own, not a branch in :func:`swap`'s loop:
-    written inline, this rare case made the whole loop 1.5-1.9x slower."""
-    ui_ = fopt[O_USEINT] > 0.0
-    k2 = _edge_ring_open_at(tets, nbr, t, a, b, old2, ring)
+    Evaluations go to :func:`swap`'s memory like the others (kind 3).  A function of
+    its own, not a branch in :func:`swap`'s loop: written inline, this rare case made
+    the whole loop 1.5-1.9x slower."""
+    I_ = S[_IC]
+    P_ = S[_P]
+    ui_ = S[_FOPT][O_USEINT] > 0.0
+    om = S[_OMARK]
+    k2 = _edge_ring_open_at(S[_TETS], S[_NBR], t, a, b, old2, ring)
     if k2 != 2 or _sign(I_, P_, ui_, a, b, ring[0], ring[2]) != 0:
         return 0.0, hn
     if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
@@ -1012,13 +995,12 @@ def _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, 
         return 0.0, hn
     old[0] = old2[0]
     old[1] = old2[1]
-    _config_key(tver, 3, -1, -1, old, 2, key)
+    _config_key(S[_TVER], 3, -1, -1, old, 2, key)
     slot, found = _cache_slot(hkey, key)
     if found:
         before, after = hval[slot, 0], hval[slot, 1]
     else:
-        before, after = _evaluate_at(I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen, eresid,
-                                     etsse, etmax, etcnt, srt, old, 2, newq, 2, reltol, abstol)
+        before, after = _evaluate_at(S, srt, old, 2, newq, 2, reltol, abstol)
         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
     gain = before - after
     if gain > reltol * before + abstol:
@@ -1167,9 +1149,6 @@ def swap(S, seed, nseed, with_neighbours):
     key = np.empty(_KEYLEN, np.int64)
     srt = np.empty(4, np.int64)
     old2 = np.empty(2, np.int64)
-    # the arrays _evaluate_at reads, taken out of the state tuple once
-    F_, ectr, emark, ebuf, epool = S[_F], S[_CTR], S[_MARK], S[_WBUF], S[_POOL]
-    ebstart, eblen, eresid, etsse, etmax, etcnt = S[_BSTART], S[_BLEN], S[_RESID], S[_TSSE], S[_TMAX], S[_TCNT]
     nflips = 0
     for rnd in range(maxrounds):
         # room for all the configurations this round can store (at most 16 per tet of
@@ -1200,9 +1179,7 @@ def swap(S, seed, nseed, with_neighbours):
                 if found:
                     before, after = hval[slot, 0], hval[slot, 1]
                 else:
-                    before, after = _evaluate_at(I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen,
-                                                 eresid, etsse, etmax, etcnt, srt, old, 2, newq, 3,
-                                                 reltol, abstol)
+                    before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol)
                     hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                 gain = before - after
                 if gain > reltol * before + abstol and gain > best_gain:
@@ -1223,9 +1200,8 @@ def swap(S, seed, nseed, with_neighbours):
                 b = tets[t, EDGES[e, 1]]
                 k = _edge_ring(tets, nbr, t, a, b, old, ring)
                 if k == -1 and bflip:
-                    g, hn = _try_flip22(tets, nbr, I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart, eblen,
-                                        eresid, etsse, etmax, etcnt, srt, tver, hkey, hval, hn, key, t, a, b,
-                                        old, old2, ring, newq, om, st, reltol, abstol)
+                    g, hn = _try_flip22(S, srt, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, st,
+                                        reltol, abstol)
                     if g > best_gain:
                         best_gain = g
                         best_kind = 3
@@ -1264,9 +1240,7 @@ def swap(S, seed, nseed, with_neighbours):
                     if found:
                         before, after = hval[slot, 0], hval[slot, 1]
                     else:
-                        before, after = _evaluate_at(I_, P_, F_, fopt, ectr, emark, ebuf, epool, ebstart,
-                                                     eblen, eresid, etsse, etmax, etcnt, srt, old, k, newq,
-                                                     nn, reltol, abstol)
+                        before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol)
                         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                     gain = before - after
                     if gain > reltol * before + abstol and gain > best_gain:
@@ -1687,14 +1661,13 @@ def _helper_signatures(S):
         (_with_room, (v8, i8, i8)),
         (_copy1, (v8, v8, i8)),
         (_copy2, (m8, m8, i8)),
-        (_sorted_copy, (v8, i8)),
+        (_sort_into, (v8, i8, v8)),
+        (_gather_at, tuple(st.types[k] for k in (_CTR, _MARK, _WBUF, _POOL, _BSTART, _BLEN)) + (v8, i8)),
         (_gather, (st, v8, i8)),
         (_positive_at, (m8, f82, b1, m8, i8)),
         (_positive, (st, m8, i8)),
         (_config23_at, (m4, m4, i8, i8, v8, m8)),
-        (_evaluate_at, tuple(st.types[k] for k in (_IC, _P, _F, _FOPT, _CTR, _MARK, _WBUF, _POOL, _BSTART,
-                                                    _BLEN, _RESID, _TSSE, _TMAX, _TCNT))
-         + (v8, v8, i8, m8, i8, f8, f8)),
+        (_evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8)),
         (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
         (_set_best, (st, i8, i8, f8)),
         (_replace, (st, v8, i8, m8, i8, b1)),
@@ -1737,8 +1710,10 @@ def _pin_signatures(S):
     _PINNED.add(st)
 
 
-#: The helpers that only :func:`swap` calls (the second half of :func:`compile_kernels`).
-_SWAP_ONLY = ("_push_unique", "_with_room", "_positive_at", "_positive", "_config23_at", "_evaluate_at", "_evaluate", "_config_key", "_cache_slot", "_cache_store", "swap")
+#: The pinned helpers of swapping alone (part 0 of :func:`compile_kernels`; ``_evaluate``
+#: is its wrapper for :class:`TetMesh`).
+_SWAP_ONLY = ("_push_unique", "_with_room", "_config23_at", "_evaluate_at", "_evaluate", "_config_key",
+              "_cache_slot", "_cache_store", "swap")
 
 
 def compile_kernels(method="paper", part=None):
@@ -1781,7 +1756,7 @@ def compile_kernels(method="paper", part=None):
     i8, f8, v8 = nt.int64, nt.float64, nt.int64[::1]
     # cheap leaves first (both halves), then each half's own subtree, callees first
     leaves = [h for h in helpers if h[0] in (_sign, _vol, _crit, _other_index, _copy1, _copy2,
-                                             _sorted_copy, _gather)]
+                                             _sort_into, _gather_at, _gather, _positive_at, _positive)]
     replace = [h for h in helpers if h[0] in (_set_best, _replace)]
     swapping = [h for h in helpers if h[0].__name__ in _SWAP_ONLY and h[0] is not swap]
     swapping += replace + [h for h in helpers if h[0] is swap]
