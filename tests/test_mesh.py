@@ -289,6 +289,28 @@ def test_orientation_predicate_int_and_float_agree_on_grid_points():
         assert _orient(tmf.S, a, b, c, d) == exact
 
 
+def test_face_planes_give_the_exact_sub_volumes_of_eq_13():
+    """The integer face planes of _tet_data evaluate to orient3d with p in place of
+    each vertex, exactly (they are the weights of eq. 13 on grids)."""
+    from trivsel.mesh import _tet_data
+    from trivsel.predicates import orient3d_int
+
+    rng = np.random.default_rng(11)
+    coords = rng.integers(-300, 300, size=(60, 3)).astype(np.int64)
+    P = coords.astype(float)
+    F = rng.random(60)
+    for _ in range(300):
+        q = [int(v) for v in rng.choice(60, 4, replace=False)]
+        pl, _, _ = _tet_data(coords, P, F, *q)
+        p = coords[int(rng.integers(60))]
+        for i in range(4):
+            args = [coords[v] for v in q]
+            args[i] = p
+            expect = orient3d_int(*[int(c) for v in args for c in v])
+            got = pl[4 * i] * p[0] + pl[4 * i + 1] * p[1] + pl[4 * i + 2] * p[2] + pl[4 * i + 3]
+            assert got == expect
+
+
 def _random_mesh_configs(criterion, seed=3):
     """A Delaunay mesh over random points with random values, and its 2-3 configurations."""
     from trivsel.mesh import config23

@@ -113,37 +113,63 @@ def _vol(I, P, ui, a, b, c, d):
 
 @njit(cache=True, inline="always")
 def _tet_data(I, P, F, q0, q1, q2, q3):
-    """Integer and float coordinates and values of tet (q0..q3) as tuples (for :func:`_locate_at`)."""
-    qi = (I[q0, 0], I[q0, 1], I[q0, 2], I[q1, 0], I[q1, 1], I[q1, 2],
-          I[q2, 0], I[q2, 1], I[q2, 2], I[q3, 0], I[q3, 1], I[q3, 2])
+    """Face planes, float coordinates and values of tet (q0..q3) as tuples (for :func:`_locate_at`).
+
+    The planes are the integer coefficients of the four sub-volumes of eq. (13) as
+    linear functions of the point p: ``w_i(p) = A_i . p + B_i`` is orient3d of the
+    tet with p in place of vertex i, ``det[b - a, c - a, d - a] = u . (v x w)``
+    rearranged (for i = 0, ``(q1 - p) . ((q2 - q1) x (q3 - q1))``; for i > 0,
+    ``(p - q0) . n_i`` with n_i the cross product of the other two edges from q0).
+    Exact integer identities, so the weights are the same integers as
+    :func:`~trivsel.predicates.orient3d_int` gives, at a dot product per face and
+    point instead of a determinant.
+    """
+    x0, y0, z0 = I[q0, 0], I[q0, 1], I[q0, 2]
+    x1, y1, z1 = I[q1, 0], I[q1, 1], I[q1, 2]
+    ax, ay, az = x1 - x0, y1 - y0, z1 - z0  # q1 - q0
+    bx, by, bz = I[q2, 0] - x0, I[q2, 1] - y0, I[q2, 2] - z0  # q2 - q0
+    cx, cy, cz = I[q3, 0] - x0, I[q3, 1] - y0, I[q3, 2] - z0  # q3 - q0
+    # w0: n0 = (q2 - q1) x (q3 - q1), w0 = n0 . q1 - n0 . p
+    ex, ey, ez = bx - ax, by - ay, bz - az
+    gx, gy, gz = cx - ax, cy - ay, cz - az
+    n0x, n0y, n0z = ey * gz - ez * gy, ez * gx - ex * gz, ex * gy - ey * gx
+    # w1: n1 = (q2 - q0) x (q3 - q0); w2: n2 = (q3 - q0) x (q1 - q0); w3: n3 = (q1 - q0) x (q2 - q0)
+    n1x, n1y, n1z = by * cz - bz * cy, bz * cx - bx * cz, bx * cy - by * cx
+    n2x, n2y, n2z = cy * az - cz * ay, cz * ax - cx * az, cx * ay - cy * ax
+    n3x, n3y, n3z = ay * bz - az * by, az * bx - ax * bz, ax * by - ay * bx
+    pl = (-n0x, -n0y, -n0z, n0x * x1 + n0y * y1 + n0z * z1,
+          n1x, n1y, n1z, -(n1x * x0 + n1y * y0 + n1z * z0),
+          n2x, n2y, n2z, -(n2x * x0 + n2y * y0 + n2z * z0),
+          n3x, n3y, n3z, -(n3x * x0 + n3y * y0 + n3z * z0))
     qf = (P[q0, 0], P[q0, 1], P[q0, 2], P[q1, 0], P[q1, 1], P[q1, 2],
           P[q2, 0], P[q2, 1], P[q2, 2], P[q3, 0], P[q3, 1], P[q3, 2])
-    return qi, qf, (F[q0], F[q1], F[q2], F[q3])
+    return pl, qf, (F[q0], F[q1], F[q2], F[q3])
 
 
 @njit(cache=True, inline="always")
-def _locate_at(ui, pi, pf, qi, qf, fq, p, q0, q1, q2, q3):
+def _locate_at(ui, pi, pf, pl, qf, fq, p, q0, q1, q2, q3):
     """Closed containment of point p (integer coordinates ``pi``, float ``pf``) in the tet
     given by :func:`_tet_data`: (inside, n_zero_signs, interpolated value).
 
     The barycentric weights (eq. 13) are the four sub-volumes with p replacing one
     vertex; the interpolant is the linear polynomial L of eq. 16.  On grids the
-    exact integer sub-volumes serve both as signs and as weights; on floats the
+    exact integer sub-volumes (from the face planes ``pl``) serve both as signs and
+    as weights; on floats the
     signs are robust (:func:`orient3d_float_sign`).  Scalars and tuples only: it is
     inlined into the point loops, where every array argument of an inlined
     function cost a reference-count update per point (measured by sampling).
     """
     if ui:
-        w0 = orient3d_int(pi[0], pi[1], pi[2], qi[3], qi[4], qi[5], qi[6], qi[7], qi[8], qi[9], qi[10], qi[11])
+        w0 = pl[0] * pi[0] + pl[1] * pi[1] + pl[2] * pi[2] + pl[3]
         if w0 < 0:
             return False, 0, 0.0
-        w1 = orient3d_int(qi[0], qi[1], qi[2], pi[0], pi[1], pi[2], qi[6], qi[7], qi[8], qi[9], qi[10], qi[11])
+        w1 = pl[4] * pi[0] + pl[5] * pi[1] + pl[6] * pi[2] + pl[7]
         if w1 < 0:
             return False, 0, 0.0
-        w2 = orient3d_int(qi[0], qi[1], qi[2], qi[3], qi[4], qi[5], pi[0], pi[1], pi[2], qi[9], qi[10], qi[11])
+        w2 = pl[8] * pi[0] + pl[9] * pi[1] + pl[10] * pi[2] + pl[11]
         if w2 < 0:
             return False, 0, 0.0
-        w3 = orient3d_int(qi[0], qi[1], qi[2], qi[3], qi[4], qi[5], qi[6], qi[7], qi[8], pi[0], pi[1], pi[2])
+        w3 = pl[12] * pi[0] + pl[13] * pi[1] + pl[14] * pi[2] + pl[15]
         if w3 < 0:
             return False, 0, 0.0
         nz = (w0 == 0) + (w1 == 0) + (w2 == 0) + (w3 == 0)
@@ -181,8 +207,8 @@ def _locate_at(ui, pi, pf, qi, qf, fq, p, q0, q1, q2, q3):
 @njit(cache=True, inline="always")
 def _locate(I, P, F, ui, q0, q1, q2, q3, p):
     """:func:`_locate_at` from the coordinate arrays (for loops that are not hot)."""
-    qi, qf, fq = _tet_data(I, P, F, q0, q1, q2, q3)
-    return _locate_at(ui, (I[p, 0], I[p, 1], I[p, 2]), (P[p, 0], P[p, 1], P[p, 2]), qi, qf, fq,
+    pl, qf, fq = _tet_data(I, P, F, q0, q1, q2, q3)
+    return _locate_at(ui, (I[p, 0], I[p, 1], I[p, 2]), (P[p, 0], P[p, 1], P[p, 2]), pl, qf, fq,
                       p, q0, q1, q2, q3)
 
 
@@ -371,11 +397,11 @@ def _fill_tet(I_, P_, F_, ui_, buf, m, q0, q1, q2, q3, t, pool, top, cand, isver
     cnt = 0
     best = -1
     bestr = 0.0
-    qi, qf, fq = _tet_data(I_, P_, F_, q0, q1, q2, q3)
+    pl, qf, fq = _tet_data(I_, P_, F_, q0, q1, q2, q3)
     for j in range(m):
         p = buf[j]
         inside, nz, val = _locate_at(ui_, (I_[p, 0], I_[p, 1], I_[p, 2]), (P_[p, 0], P_[p, 1], P_[p, 2]),
-                                     qi, qf, fq, p, q0, q1, q2, q3)
+                                     pl, qf, fq, p, q0, q1, q2, q3)
         if not inside:
             continue
         pool[top + L] = p
@@ -591,14 +617,31 @@ def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol):
             p = buf[j]
             before += resid[p] * resid[p]
         thr = reltol * before + abstol
+        # each point in the first new tet that contains it (2 to 4 tets; their data once)
+        a0, a1, a2, a3 = newq[0, 0], newq[0, 1], newq[0, 2], newq[0, 3]
+        b0, b1, b2, b3 = newq[1, 0], newq[1, 1], newq[1, 2], newq[1, 3]
+        kc = min(2, nnew - 1)
+        kd = min(3, nnew - 1)
+        c0, c1, c2, c3 = newq[kc, 0], newq[kc, 1], newq[kc, 2], newq[kc, 3]
+        d0, d1, d2, d3 = newq[kd, 0], newq[kd, 1], newq[kd, 2], newq[kd, 3]
+        plA, qfA, fqA = _tet_data(I_, P_, F, a0, a1, a2, a3)
+        plB, qfB, fqB = _tet_data(I_, P_, F, b0, b1, b2, b3)
+        plC, qfC, fqC = _tet_data(I_, P_, F, c0, c1, c2, c3)
+        plD, qfD, fqD = _tet_data(I_, P_, F, d0, d1, d2, d3)
         for j in range(m):
             p = buf[j]
-            for k in range(nnew):
-                inside, nz, val = _locate(I_, P_, F, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3], p)
-                if inside:
-                    r = F[p] - val
-                    after += r * r
-                    break
+            pi = (I_[p, 0], I_[p, 1], I_[p, 2])
+            pf = (P_[p, 0], P_[p, 1], P_[p, 2])
+            inside, nz, val = _locate_at(ui_, pi, pf, plA, qfA, fqA, p, a0, a1, a2, a3)
+            if not inside:
+                inside, nz, val = _locate_at(ui_, pi, pf, plB, qfB, fqB, p, b0, b1, b2, b3)
+                if not inside and nnew > 2:
+                    inside, nz, val = _locate_at(ui_, pi, pf, plC, qfC, fqC, p, c0, c1, c2, c3)
+                    if not inside and nnew > 3:
+                        inside, nz, val = _locate_at(ui_, pi, pf, plD, qfD, fqD, p, d0, d1, d2, d3)
+            if inside:
+                r = F[p] - val
+                after += r * r
             if before - after <= thr:
                 break
         return before, after
@@ -614,11 +657,11 @@ def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol):
         sse = 0.0
         mx = 0.0
         cnt = 0
-        qi, qf, fq = _tet_data(I_, P_, F, q0, q1, q2, q3)
+        pl, qf, fq = _tet_data(I_, P_, F, q0, q1, q2, q3)
         for j in range(m):
             p = buf[j]
             inside, nz, val = _locate_at(ui_, (I_[p, 0], I_[p, 1], I_[p, 2]), (P_[p, 0], P_[p, 1], P_[p, 2]),
-                                         qi, qf, fq, p, q0, q1, q2, q3)
+                                         pl, qf, fq, p, q0, q1, q2, q3)
             if inside and (ownvert or (p != q0 and p != q1 and p != q2 and p != q3)):
                 r = F[p] - val
                 sse += r * r
