@@ -110,6 +110,7 @@ def _run_cli(*args):
     (["--function", "1", "--n", "1"], "n must be an integer >= 2, got 1"),
     (["missing.vti"], "does not exist"),
     (["--function", "1", "--threads", "0"], "threads must be an integer >= 1, got 0"),
+    (["--function", "1", "--method", "greedy", "--max-flips", "0"], "max_flips must be a positive integer, got 0"),
 ])
 def test_bad_cli_arguments_one_line_error_no_output(tmp_path, args, message):
     out = tmp_path / "out"

@@ -137,6 +137,26 @@ def test_tolerance_stop_rms_and_inf():
     assert r3.snapshots[-1].errors["E_inf"] <= 0.05
 
 
+def test_max_flips_caps_the_swap_after_each_insertion_but_not_the_final_pass():
+    from trivsel.reduction import GREEDY_MAX_FLIPS
+
+    d = sample_grid(5, 10)
+    default = trivsel.reduce(d, fractions=[0.1], method="greedy")
+    capped = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=GREEDY_MAX_FLIPS)
+    free = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=10**5)
+    assert default.options["max_flips"] == GREEDY_MAX_FLIPS
+    np.testing.assert_array_equal(default.selected, capped.selected)
+    assert default.stats["round_cap_hits"] > 0 and free.stats["round_cap_hits"] == 0
+    one = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=1, check=check_mesh)
+    assert one.stats["round_cap_hits"] > default.stats["round_cap_hits"]
+    assert sum(one.stats["flips"].values()) < sum(free.stats["flips"].values())
+    # the paper's method swaps until nothing improves
+    assert trivsel.reduce(d, fractions=[0.1]).options["max_flips"] is None
+    # the final pass (end of section 4) is not capped: it flips more than once
+    fp = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=1, final_pass=True)
+    assert sum(fp.snapshots[-1].flips.values()) > sum(one.snapshots[-1].flips.values()) + 1
+
+
 def test_count_stop():
     r = trivsel.reduce(1, n=6, count=40)
     assert r.snapshots[-1].n_selected == 40
@@ -152,6 +172,9 @@ def test_count_stop():
     ({"count": 10**6}, "count must be an integer"),
     ({"tol_rms": -1.0}, "tol_rms"),
     ({"fractions": [0.5], "criterion": "l3"}, "unknown criterion"),
+    ({"fractions": [0.5], "max_flips": 0}, "max_flips must be a positive integer, got 0"),
+    ({"fractions": [0.5], "max_flips": 2.5}, "max_flips must be a positive integer, got 2.5"),
+    ({"fractions": [0.5], "max_flips": True}, "max_flips must be a positive integer, got True"),
     ({}, "give fractions"),
 ])
 def test_bad_arguments_raise_input_error(kwargs, message):

@@ -56,6 +56,7 @@ def _add_option_args(p):
     g.add_argument("--ranking", default=DEFAULTS["ranking"], choices=["curvature", "ascending", "random", "analytic"],
                    help=OPTION_DOCS["ranking"])
     g.add_argument("--rel-tol", type=float, default=DEFAULTS["rel_tol"], help=OPTION_DOCS["rel_tol"])
+    g.add_argument("--max-flips", type=int, default=None, help=OPTION_DOCS["max_flips"])
     g.add_argument("--seed", type=int, default=DEFAULTS["seed"], help="seed for the random tie order")
 
 
@@ -148,7 +149,7 @@ def _cmd_reduce(a):
                     own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
                     rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
-                    neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips,
+                    neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips, max_flips=a.max_flips,
                     seed=a.seed, threads=a.threads, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()

@@ -26,6 +26,10 @@ from .triangulation import (box_tetrahedra, cube_corners, delaunay_tetrahedra, e
 
 __all__ = ["reduce", "ReductionResult", "Snapshot", "DEFAULTS", "OPTION_DOCS"]
 
+#: Flips after each greedy insertion (``max_flips``); measured on 65^3 (README, "greedy speed")
+GREEDY_MAX_FLIPS = 6
+_UNLIMITED = 100000  # the mesh's default swap-round cap: in practice unlimited
+
 #: The paper's open choices and our defaults (the README's options table is built from these).
 DEFAULTS = {
     "method": "paper",
@@ -60,6 +64,8 @@ OPTION_DOCS = {
     "ranking": "insertion order: 'curvature' (descending K, the paper), or the diagnostic orders 'ascending' "
                "(K ascending), 'random' (seeded) and 'analytic' (descending exact K of a Table-1 function)",
     "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
+    "max_flips": "at most this many flips (swap rounds) after each insertion; default: unlimited for paper "
+                 "(section 4 swaps until nothing improves), 6 for greedy (measured: README)",
     "quantum": "relative step to which K is rounded before sorting (rounding noise stays a tie)",
 }
 
@@ -153,7 +159,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
            criterion=None, candidates="all", tie_order="index", own_vertices=True, final_pass=False,
            first_improving=False, boundary_diagonals="mirrored", curvature="direct", ranking="curvature", rel_tol=1e-9,
            quantum=1e-9, seed=0, values="data", greedy_key="max", neighbourhood="kuhn", boundary_flips=None,
-           threads=1, check=None, progress=None):
+           max_flips=None, threads=1, check=None, progress=None):
     """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
 
     Parameters
@@ -188,6 +194,12 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         Greedy only: insert the point with the largest residual overall ("max",
         aims at E_inf), or the worst point of the tet with the largest sum of
         squared residuals ("sse", aims at E_RMS).
+    max_flips : int, optional
+        At most this many flips after each insertion (each swap round of section 4
+        applies the best flip of O; the search stops earlier when nothing
+        improves).  Default: unlimited for ``paper`` (the paper swaps until no
+        configuration improves), 6 for ``greedy``: on 65^3 it takes 18 % less
+        time than unlimited at the same errors (README, "greedy speed").
     criterion, candidates, tie_order, own_vertices, final_pass, first_improving,
     boundary_diagonals, curvature, rel_tol, quantum, seed
         The paper's open choices; see :data:`OPTION_DOCS` and the README.
@@ -226,6 +238,11 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         criterion = "sse" if method == "greedy" else "rms"
     if boundary_flips is None:
         boundary_flips = method == "greedy"
+    if max_flips is None:
+        max_flips = GREEDY_MAX_FLIPS if method == "greedy" else None
+    if max_flips is not None and (isinstance(max_flips, bool) or not isinstance(max_flips, (int, np.integer))
+                                  or max_flips < 1):
+        raise InputError(f"max_flips must be a positive integer, got {max_flips!r}")
     _check_choice("criterion", criterion, tuple(_mesh.CRITERIA))
     _check_choice("candidate set", candidates, ("all", "interior"))
     _check_choice("tie order", tie_order, TIE_ORDERS)
@@ -259,6 +276,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                    first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
                    curvature=curvature, ranking=ranking, greedy_key=greedy_key,
                    neighbourhood=neighbourhood, boundary_flips=bool(boundary_flips), rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
+                   max_flips=None if max_flips is None else int(max_flips),
                    fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values=values_modes)
 
     # --- fixed points and initial triangulation of all points (section 3)
@@ -356,7 +374,8 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
                        own_vertices=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
                        pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order,
-                       boundary_flips=options["boundary_flips"])
+                       boundary_flips=options["boundary_flips"],
+                       max_rounds=_UNLIMITED if options["max_flips"] is None else options["max_flips"])
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
