@@ -29,6 +29,9 @@ helpers of the swap loop (``*_at`` variants) allocate nothing and are compiled w
 state tuple; and nothing in :func:`swap`'s inner loops rebinds an array.  Helpers are compiled for
 one signature each (:func:`_pin_signatures`); :func:`compile_kernels` fills the
 on-disk cache in two halves.
+On grids a point-in-tet test is four dot products with the tet's integer face
+planes (:func:`_tet_data`), the exact sub-volumes of eq. (13), computed once per tet
+and loop rather than once per point.
 """
 
 from __future__ import annotations

@@ -26,7 +26,7 @@ from .triangulation import (box_tetrahedra, cube_corners, delaunay_tetrahedra, e
 
 __all__ = ["reduce", "ReductionResult", "Snapshot", "DEFAULTS", "OPTION_DOCS"]
 
-#: Flips after each greedy insertion (``max_flips``); measured on 65^3 (README, "greedy speed")
+#: Flips after each greedy insertion (``max_flips``); measured on 65^3 (README, "Beyond the paper")
 GREEDY_MAX_FLIPS = 6
 _UNLIMITED = 100000  # the mesh's default swap-round cap: in practice unlimited
 
@@ -65,7 +65,7 @@ OPTION_DOCS = {
                "(K ascending), 'random' (seeded) and 'analytic' (descending exact K of a Table-1 function)",
     "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
     "max_flips": "at most this many flips (swap rounds) after each insertion; default: unlimited for paper "
-                 "(section 4 swaps until nothing improves), 6 for greedy (measured: README)",
+                 "(section 4 swaps until nothing improves), 6 for greedy (measured: README, \"Beyond the paper\")",
     "quantum": "relative step to which K is rounded before sorting (rounding noise stays a tie)",
 }
 
@@ -199,7 +199,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         applies the best flip of O; the search stops earlier when nothing
         improves).  Default: unlimited for ``paper`` (the paper swaps until no
         configuration improves), 6 for ``greedy``: on 65^3 it takes 18 % less
-        time than unlimited at the same errors (README, "greedy speed").
+        time than unlimited at the same errors (README, "Beyond the paper").
     criterion, candidates, tie_order, own_vertices, final_pass, first_improving,
     boundary_diagonals, curvature, rel_tol, quantum, seed
         The paper's open choices; see :data:`OPTION_DOCS` and the README.
