@@ -53,6 +53,7 @@ C_FLIP23, C_FLIP32, C_FLIP44, C_NVERT, C_ABOVE, C_OSTAMP = 6, 7, 8, 9, 10, 11
 C_CASE1, C_CASE2, C_CASE3, C_ROUNDCAP = 12, 13, 14, 15
 C_HEAPN = 16
 C_FLIP22 = 17
+C_LASTM = 18  # points gathered by the last evaluation (see _evaluate_at's ``reuse``)
 
 # float options
 O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS, O_GREEDY, O_GKEY, O_BFLIP = range(11)
@@ -610,15 +611,19 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
     beat the best one found so far in the round was measured slower: such
     configurations must be evaluated again in the next round.)
     """
-    return _evaluate_at(S, np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol)
+    return _evaluate_at(S, np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol, False)
 
 
 @njit(cache=True, _nrt=False)
-def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol):
+def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol, reuse):
     """:func:`_evaluate` with room ``srt`` for the sorted ids, allocating nothing, and
     compiled without reference counting: :func:`swap` calls it in its loop, where the
     29 arrays of the state tuple would otherwise be counted in and out per call
     (about a third of a greedy run on 65^3, sampled).
+
+    ``reuse``: the previous call evaluated the same old tets (the other diagonal of a
+    4-4 configuration), so their points are still in ``S[_WBUF]`` and, for SSE,
+    their ``before`` in ``S[_ACC][1]``: no second gather.
     """
     I_ = S[_IC]
     P_ = S[_P]
@@ -630,15 +635,24 @@ def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol):
     # the old tets in ascending id order: the sums then do not depend on the tet the
     # configuration was found from, to the last bit (equal gains stay equal)
     _sort_into(old, nold, srt)
-    m = _gather_at(S[_CTR], S[_MARK], S[_WBUF], S[_POOL], S[_BSTART], S[_BLEN], srt, nold)
+    ctr = S[_CTR]
+    if reuse:
+        m = ctr[C_LASTM]
+    else:
+        m = _gather_at(ctr, S[_MARK], S[_WBUF], S[_POOL], S[_BSTART], S[_BLEN], srt, nold)
+        ctr[C_LASTM] = m
     buf = S[_WBUF]
     before = 0.0
     after = 0.0
     if crit == 2.0:
-        resid = S[_RESID]
-        for j in range(m):
-            p = buf[j]
-            before += resid[p] * resid[p]
+        if reuse:
+            before = S[_ACC][1]
+        else:
+            resid = S[_RESID]
+            for j in range(m):
+                p = buf[j]
+                before += resid[p] * resid[p]
+            S[_ACC][1] = before
         thr = reltol * before + abstol
         # each point in the first new tet that contains it (2 to 4 tets; their data once)
         a0, a1, a2, a3 = newq[0, 0], newq[0, 1], newq[0, 2], newq[0, 3]
@@ -1097,7 +1111,7 @@ def _try_flip22(S, srt, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, st,
     if found:
         before, after = hval[slot, 0], hval[slot, 1]
     else:
-        before, after = _evaluate_at(S, srt, old, 2, newq, 2, reltol, abstol)
+        before, after = _evaluate_at(S, srt, old, 2, newq, 2, reltol, abstol, False)
         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
     gain = before - after
     if gain > reltol * before + abstol:
@@ -1282,7 +1296,7 @@ def swap(S, seed, nseed, with_neighbours):
                 elif crit != 2.0 and best_gain > 0.0 and _gain_bound(crit, tsse, tmax, tcnt, old, 2) * _BOUND_MARGIN <= best_gain:
                     continue  # cannot beat this round's best: left for a later round
                 else:
-                    before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol)
+                    before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol, False)
                     hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                 gain = before - after
                 if gain > reltol * before + abstol and gain > best_gain:
@@ -1326,6 +1340,7 @@ def swap(S, seed, nseed, with_neighbours):
                 if skip:
                     continue
                 nalt = 1 if k == 3 else 2
+                gathered = False  # the first diagonal's evaluation left this ring's points in WBUF
                 for alt in range(nalt):
                     if k == 3:
                         quads32(a, b, ring, newq)
@@ -1345,7 +1360,8 @@ def swap(S, seed, nseed, with_neighbours):
                     elif crit != 2.0 and best_gain > 0.0 and _gain_bound(crit, tsse, tmax, tcnt, old, k) * _BOUND_MARGIN <= best_gain:
                         continue  # cannot beat this round's best (see above)
                     else:
-                        before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol)
+                        before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol, gathered)
+                        gathered = True
                         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                     gain = before - after
                     if gain > reltol * before + abstol and gain > best_gain:
@@ -1738,13 +1754,17 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
     if candidates is not None:
         cand[:] = 0
         cand[np.asarray(candidates, np.int64)] = 1
+    # tets, nbr and the greedy candidate of a slot are written when _alloc hands the
+    # slot out, so they start uninitialised: np.empty leaves the untouched part of
+    # the capacity (8 N tets) unmapped, where np.full wrote it all (3 % of a greedy
+    # run on 65^3)
     S = (P, IC, F,
-         np.full((cap, 4), -1, np.int32), np.full((cap, 4), -1, np.int32), np.zeros(cap, np.uint8),
+         np.empty((cap, 4), np.int32), np.empty((cap, 4), np.int32), np.zeros(cap, np.uint8),
          np.zeros(cap, np.int32), np.zeros(cap, np.int64), np.zeros(cap, np.int32),
          np.zeros(pcap, np.int32), np.zeros(cap), np.zeros(cap), np.zeros(cap, np.int32),
          np.zeros(N, np.int64), np.zeros(N), np.full(N, -1, np.int32), np.zeros(N, np.uint8),
          np.zeros(N, np.int32), np.zeros(24, np.int64), fopt, np.zeros(4), np.zeros(cap, np.int64),
-         np.full(cap, -1, np.int32), np.zeros(cap), np.zeros(cap, np.int64),
+         np.empty(cap, np.int32), np.zeros(cap), np.zeros(cap, np.int64),
          np.zeros(2 * cap), np.zeros(2 * cap, np.int64), np.zeros(2 * cap, np.int64), cand)
     if pin:
         _pin_signatures(S)
@@ -1779,7 +1799,7 @@ def _helper_signatures(S):
         (_positive, (st, m8, i8)),
         (_config23_at, (m4, m4, i8, i8, v8, m8)),
         (_gain_bound, (f8,) + tuple(st.types[k] for k in (_TSSE, _TMAX, _TCNT)) + (v8, i8)),
-        (_evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8)),
+        (_evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8, b1)),
         (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
         (_set_best, (st, i8, i8, f8)),
         (_replace, (st, v8, i8, m8, i8, b1)),
