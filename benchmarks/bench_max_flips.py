@@ -4,7 +4,7 @@
 For each cap: the time of greedy on the 65^3 grid, function 4 to 10 % (best of
 ``--repeats`` runs in this process, after an untimed warm-up), and E_RMS and E_inf
 on the 33^3 grid for functions 1-5 at 10 % and 5 %, as ratios to the uncapped run
-(``max_flips`` = 100000, in practice unlimited) measured in the same invocation.
+(``max_flips`` = ``trivsel.mesh.UNLIMITED_ROUNDS``) measured in the same invocation.
 
 Usage::
 
@@ -21,8 +21,7 @@ import numpy as np
 
 from trivsel import reduce
 from trivsel.data import sample_grid
-
-UNLIMITED = 100000
+from trivsel.mesh import UNLIMITED_ROUNDS as UNLIMITED
 
 
 def run(cap, n_time, repeats):

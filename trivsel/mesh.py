@@ -55,6 +55,9 @@ C_HEAPN = 16
 C_FLIP22 = 17
 C_LASTM = 18  # points gathered by the last evaluation (see _evaluate_at's ``reuse``)
 
+#: Swap rounds (flips) per call that mean "until nothing improves" (``max_rounds``'s default)
+UNLIMITED_ROUNDS = 100000
+
 # float options
 O_USEINT, O_CRIT, O_OWNVERT, O_RELTOL, O_ABSTOL, O_TOLINF, O_FIRST, O_MAXROUNDS, O_GREEDY, O_GKEY, O_BFLIP = range(11)
 
@@ -240,21 +243,24 @@ def _crit(c, sse, mx, cnt):
 
 
 @njit(cache=True, _nrt=False)
-def _gain_bound(crit, tsse, tmax, tcnt, old, nold):
-    """An upper bound of a flip's gain that costs no point test: ``before`` itself
+def _cannot_beat(crit, tsse, tmax, tcnt, old, nold, best_gain):
+    """Whether a flip of the old tets surely cannot beat the round's ``best_gain``,
+    from an upper bound of its gain that costs no point test: ``before`` itself
     (``after`` >= 0), the sum of the old tets' stored errors (criteria RMS and max,
-    eqs. 14-15; :func:`_evaluate` sums the same terms in another order).  Not used
-    for SSE, whose ``before`` sums the stored global residuals instead: equal in
-    exact arithmetic, but not within a relative rounding margin where residuals
-    are much smaller than the values."""
+    eqs. 14-15; :func:`_evaluate` sums the same terms in another order, hence
+    :data:`_BOUND_MARGIN`).  Never for SSE, whose ``before`` sums the stored global
+    residuals instead: equal in exact arithmetic, but not within a relative
+    rounding margin where residuals are much smaller than the values."""
+    if crit == 2.0 or best_gain <= 0.0:
+        return False
     ub = 0.0
     for k in range(nold):
         t = old[k]
         ub += _crit(crit, tsse[t], tmax[t], tcnt[t])
-    return ub
+    return ub * _BOUND_MARGIN <= best_gain
 
 
-# Margin of :func:`_gain_bound` against the rounding of the evaluated sums (a sum of m
+# Margin of :func:`_cannot_beat` against the rounding of the evaluated sums (a sum of m
 # non-negative terms is exact to m * 2^-53 relative; m < 10^6 points per configuration)
 _BOUND_MARGIN = 1.0 + 1e-9
 
@@ -907,44 +913,19 @@ def edge_ring(S, t, a, b, old, ring):
     Returns k for a closed ring (interior edge) of at most old.shape[0] tets, -1
     for an edge on the hull, or -2 for a longer ring.
     """
-    return _edge_ring(S[_TETS], S[_NBR], t, a, b, old, ring)
+    return _edge_ring(S[_TETS], S[_NBR], S[_OMARK], -1, t, a, b, old, ring)
 
 
 @njit(cache=True, _nrt=False)
-def _edge_ring(tets, nbr, t, a, b, old, ring):
-    """:func:`edge_ring` on the arrays themselves: :func:`swap` walks six edges of every
-    tet of O each round, and taking the arrays out of the state tuple per walk was
-    the largest single cost of a greedy run (sampled)."""
-    cap = old.shape[0]
-    x, y = _edge_opposite(tets, t, a, b)
-    # tet t = {a, b, x, y} with orient(a, b, x, y) > 0; step across the face (a, b, y)
-    k = 0
-    cur = t
-    while True:
-        if k >= cap:
-            return -2
-        old[k] = cur
-        ring[k] = x
-        k += 1
-        j = _other_index(tets, cur, a, b, y)  # local index of x in cur
-        nxt = nbr[cur, j]
-        if nxt < 0:
-            return -1
-        if nxt == t:
-            return k
-        z = tets[nxt, _other_index(tets, nxt, a, b, y)]
-        x = y
-        y = z
-        cur = nxt
+def _edge_ring(tets, nbr, om, st, t, a, b, old, ring):
+    """:func:`edge_ring` on the arrays themselves (taking them out of the state tuple
+    per walk was the largest single cost of a greedy run, sampled).
 
-
-@njit(cache=True, _nrt=False)
-def _edge_ring_owned(tets, nbr, om, st, t, a, b, old, ring):
-    """:func:`_edge_ring` for :func:`swap`'s scan of O: gives up (returns -3) as soon
-    as the walk meets a tet of O (``om[u] == st``) with a smaller id than t, from
-    which the scan evaluates this edge instead (every configuration once, from its
-    smallest tet in O).  The ring walks were the largest cost of a greedy run after
-    the evaluations (sampled); about half of them now stop early."""
+    For :func:`swap`'s scan of O it gives up (returns -3) as soon as the walk meets
+    a tet of O (``om[u] == st``) with a smaller id than t, from which the scan
+    evaluates this edge instead (every configuration once, from its smallest tet in
+    O): about half of the walks stop early.  ``st = -1`` (no stamp) walks the whole
+    ring."""
     cap = old.shape[0]
     x, y = _edge_opposite(tets, t, a, b)
     k = 0
@@ -1293,7 +1274,7 @@ def swap(S, seed, nseed, with_neighbours):
                 slot, found = _cache_slot(hkey, key)
                 if found:
                     before, after = hval[slot, 0], hval[slot, 1]
-                elif crit != 2.0 and best_gain > 0.0 and _gain_bound(crit, tsse, tmax, tcnt, old, 2) * _BOUND_MARGIN <= best_gain:
+                elif _cannot_beat(crit, tsse, tmax, tcnt, old, 2, best_gain):
                     continue  # cannot beat this round's best: left for a later round
                 else:
                     before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol, False)
@@ -1315,7 +1296,7 @@ def swap(S, seed, nseed, with_neighbours):
             for e in range(6):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
-                k = _edge_ring_owned(tets, nbr, om, st, t, a, b, old, ring)
+                k = _edge_ring(tets, nbr, om, st, t, a, b, old, ring)
                 if k == -1 and bflip:
                     g, hn = _try_flip22(S, srt, hkey, hval, hn, key, t, a, b, old, old2, ring, newq, st,
                                         reltol, abstol)
@@ -1357,7 +1338,7 @@ def swap(S, seed, nseed, with_neighbours):
                     slot, found = _cache_slot(hkey, key)
                     if found:
                         before, after = hval[slot, 0], hval[slot, 1]
-                    elif crit != 2.0 and best_gain > 0.0 and _gain_bound(crit, tsse, tmax, tcnt, old, k) * _BOUND_MARGIN <= best_gain:
+                    elif _cannot_beat(crit, tsse, tmax, tcnt, old, k, best_gain):
                         continue  # cannot beat this round's best (see above)
                     else:
                         before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol, gathered)
@@ -1425,7 +1406,7 @@ def global_pass(S):
             n += 1
     fopt = S[_FOPT]
     cap = fopt[O_MAXROUNDS]
-    fopt[O_MAXROUNDS] = 1e18
+    fopt[O_MAXROUNDS] = UNLIMITED_ROUNDS
     nflips = swap(S, seed, n, False)
     fopt[O_MAXROUNDS] = cap
     return nflips
@@ -1724,7 +1705,7 @@ def point_weights(S, verts, weights):
 # ----------------------------------------------------------------------------- Python side
 
 def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
-               abs_tol=None, tol_inf=None, first_improving=False, max_rounds=100000,
+               abs_tol=None, tol_inf=None, first_improving=False, max_rounds=UNLIMITED_ROUNDS,
                tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None,
                boundary_flips=False, pin=True):
     """Allocate the flat arrays of an empty mesh over the given original points.
@@ -1798,7 +1779,7 @@ def _helper_signatures(S):
         (_positive_at, (m8, f82, b1, m8, i8)),
         (_positive, (st, m8, i8)),
         (_config23_at, (m4, m4, i8, i8, v8, m8)),
-        (_gain_bound, (f8,) + tuple(st.types[k] for k in (_TSSE, _TMAX, _TCNT)) + (v8, i8)),
+        (_cannot_beat, (f8,) + tuple(st.types[k] for k in (_TSSE, _TMAX, _TCNT)) + (v8, i8, f8)),
         (_evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8, b1)),
         (_evaluate, (st, v8, i8, m8, i8, f8, f8)),
         (_set_best, (st, i8, i8, f8)),
@@ -1844,7 +1825,7 @@ def _pin_signatures(S):
 
 #: The pinned helpers of swapping alone (part 0 of :func:`compile_kernels`; ``_evaluate``
 #: is its wrapper for :class:`TetMesh`).
-_SWAP_ONLY = ("_push_unique", "_with_room", "_config23_at", "_gain_bound", "_evaluate_at", "_evaluate", "_config_key",
+_SWAP_ONLY = ("_push_unique", "_with_room", "_config23_at", "_cannot_beat", "_evaluate_at", "_evaluate", "_config_key",
               "_cache_slot", "_cache_store", "swap")
 
 

@@ -28,7 +28,6 @@ __all__ = ["reduce", "ReductionResult", "Snapshot", "DEFAULTS", "OPTION_DOCS"]
 
 #: Flips after each greedy insertion (``max_flips``); measured on 65^3 (README, "Beyond the paper")
 GREEDY_MAX_FLIPS = 6
-_UNLIMITED = 100000  # the mesh's default swap-round cap: in practice unlimited
 
 #: The paper's open choices and our defaults (the README's options table is built from these).
 DEFAULTS = {
@@ -375,7 +374,7 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
                        pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order,
                        boundary_flips=options["boundary_flips"],
-                       max_rounds=_UNLIMITED if options["max_flips"] is None else options["max_flips"])
+                       max_rounds=options["max_flips"] or _mesh.UNLIMITED_ROUNDS)
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
