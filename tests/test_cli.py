@@ -111,6 +111,9 @@ def _run_cli(*args):
     (["missing.vti"], "does not exist"),
     (["--function", "1", "--threads", "0"], "threads must be an integer >= 1, got 0"),
     (["--function", "1", "--method", "greedy", "--max-flips", "0"], "max_flips must be a positive integer, got 0"),
+    (["--function", "1", "--swap-memory", "forever"], "argument --swap-memory: invalid choice: 'forever'"),
+    (["--function", "1", "--method", "simplex"], "argument --method: invalid choice: 'simplex'"),
+    (["--function", "1", "--max-flips", "two"], "argument --max-flips: invalid int value: 'two'"),
 ])
 def test_bad_cli_arguments_one_line_error_no_output(tmp_path, args, message):
     out = tmp_path / "out"

@@ -358,3 +358,56 @@ def test_early_stopped_evaluation_decides_like_the_full_one(criterion):
                 assert a <= full_a
                 stopped += a < full_a
     assert stopped > 0  # the early stop did happen
+
+
+def test_config_keys_are_distinct_and_do_not_depend_on_the_order_of_the_tets():
+    from trivsel.mesh import _KEYLEN, _config_key
+
+    tver = np.array([0, 3, 1, 2**31 - 1, 7, 0, 0, 5], np.int64)
+    keys = set()
+    for kind, d, olds in [(0, (-1, -1), [(1, 2), (2, 3), (0, 1), (6, 7)]),
+                          (1, (-1, -1), [(1, 2, 3), (0, 1, 2), (5, 6, 7)]),
+                          (2, (4, 9), [(0, 1, 2, 3), (1, 2, 3, 4)]), (2, (9, 5), [(0, 1, 2, 3)]),
+                          (2, (2**30 - 2, 0), [(0, 1, 2, 3)]), (3, (-1, -1), [(1, 2), (0, 7)])]:
+        for old in olds:
+            key = np.empty(_KEYLEN, np.int64)
+            _config_key(tver, kind, d[0], d[1], np.array(old, np.int64), len(old), key)
+            rev = np.empty(_KEYLEN, np.int64)
+            _config_key(tver, kind, d[1], d[0], np.array(old[::-1], np.int64), len(old), rev)
+            np.testing.assert_array_equal(key, rev)
+            assert key[0] != -1  # -1 marks an empty slot
+            keys.add(tuple(key))
+    assert len(keys) == 13
+    # a tet id reused (its version counts up) is another key
+    key = np.empty(_KEYLEN, np.int64)
+    _config_key(tver, 0, -1, -1, np.array([1, 2], np.int64), 2, key)
+    tver[2] += 1
+    key2 = np.empty(_KEYLEN, np.int64)
+    _config_key(tver, 0, -1, -1, np.array([1, 2], np.int64), 2, key2)
+    assert tuple(key) != tuple(key2)
+
+
+def test_bounded_memory_table_forgets_but_never_returns_a_wrong_value():
+    # the run-long memory (swap_memory="run") is a fixed table: a key looks at a few
+    # slots and may overwrite one; a lookup finds a key only with its own value
+    from trivsel.mesh import _KEYLEN, _cache_slot, _cache_store
+
+    rng = np.random.default_rng(5)
+    hkey = np.full((64, _KEYLEN), -1, np.int64)
+    hval = np.empty((64, 2))
+    truth = {}
+    found_any = lost_any = False
+    for it in range(2000):
+        key = np.zeros(_KEYLEN, np.int64)
+        key[0] = int(rng.integers(0, 300))
+        key[1] = int(rng.integers(0, 3))
+        slot, found = _cache_slot(hkey, key, 4)
+        k = tuple(key)
+        if found:
+            found_any = True
+            assert tuple(hval[slot]) == truth[k]
+        else:
+            lost_any |= k in truth
+            truth[k] = (float(it), -float(it))
+            _cache_store(hkey, hval, 0, slot, key, float(it), -float(it))
+    assert found_any and lost_any

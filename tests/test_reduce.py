@@ -157,6 +157,34 @@ def test_max_flips_caps_the_swap_after_each_insertion_but_not_the_final_pass():
     assert sum(fp.snapshots[-1].flips.values()) > sum(one.snapshots[-1].flips.values()) + 1
 
 
+@pytest.mark.parametrize("method, criterion", [("paper", "rms"), ("paper", "max"), ("greedy", "rms")])
+def test_run_long_swap_memory_evaluates_less_with_identical_results(method, criterion):
+    # under rms and max a remembered gain is the gain a new evaluation computes, bit for bit
+    d = sample_grid(4, 12)
+    run = trivsel.reduce(d, fractions=[0.2, 0.1], method=method, criterion=criterion, check=check_mesh)
+    call = trivsel.reduce(d, fractions=[0.2, 0.1], method=method, criterion=criterion, swap_memory="call")
+    assert run.options["swap_memory"] == "run" and call.options["swap_memory"] == "call"
+    np.testing.assert_array_equal(run.selected, call.selected)
+    for a, b in zip(run.snapshots, call.snapshots):
+        np.testing.assert_array_equal(a.tets, b.tets)
+        assert a.errors == b.errors
+    assert run.stats["flips"] == call.stats["flips"]
+    assert run.stats["evaluations"]["made"] < 0.8 * call.stats["evaluations"]["made"]
+    assert run.stats["evaluations"]["remembered"] > call.stats["evaluations"]["remembered"]
+
+
+def test_run_long_swap_memory_under_sse_differs_only_at_rounding_ties():
+    # greedy's default criterion: remembered SSE sums may differ from new ones in
+    # the last bits, so choices between symmetric configurations can differ
+    for f in (1, 4, 5):
+        d = sample_grid(f, 12)
+        run = trivsel.reduce(d, fractions=[0.1], method="greedy", check=check_mesh)
+        call = trivsel.reduce(d, fractions=[0.1], method="greedy", swap_memory="call")
+        assert run.stats["evaluations"]["made"] < 0.8 * call.stats["evaluations"]["made"]
+        for key in ("E_rms", "E_inf"):
+            assert run.snapshots[-1].errors[key] == pytest.approx(call.snapshots[-1].errors[key], rel=0.05)
+
+
 def test_count_stop():
     r = trivsel.reduce(1, n=6, count=40)
     assert r.snapshots[-1].n_selected == 40
@@ -175,6 +203,7 @@ def test_count_stop():
     ({"fractions": [0.5], "max_flips": 0}, "max_flips must be a positive integer, got 0"),
     ({"fractions": [0.5], "max_flips": 2.5}, "max_flips must be a positive integer, got 2.5"),
     ({"fractions": [0.5], "max_flips": True}, "max_flips must be a positive integer, got True"),
+    ({"fractions": [0.5], "swap_memory": "forever"}, "unknown swap memory 'forever': choose one of call, run"),
     ({}, "give fractions"),
 ])
 def test_bad_arguments_raise_input_error(kwargs, message):

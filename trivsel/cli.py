@@ -57,11 +57,21 @@ def _add_option_args(p):
                    help=OPTION_DOCS["ranking"])
     g.add_argument("--rel-tol", type=float, default=DEFAULTS["rel_tol"], help=OPTION_DOCS["rel_tol"])
     g.add_argument("--max-flips", type=int, default=None, help=OPTION_DOCS["max_flips"])
+    g.add_argument("--swap-memory", default=DEFAULTS["swap_memory"], choices=["run", "call"],
+                   help=OPTION_DOCS["swap_memory"])
     g.add_argument("--seed", type=int, default=DEFAULTS["seed"], help="seed for the random tie order")
 
 
+class _Parser(argparse.ArgumentParser):
+    """argparse with the one-line error of every other bad input (no usage block);
+    the sub-command parsers inherit it."""
+
+    def error(self, message):
+        self.exit(2, f"trivsel: error: {message}\n")
+
+
 def build_parser():
-    parser = argparse.ArgumentParser(prog="trivsel", description="Data point selection for piecewise trilinear "
+    parser = _Parser(prog="trivsel", description="Data point selection for piecewise trilinear "
                                      "approximation (Hamann & Chen 1994).")
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
@@ -150,6 +160,7 @@ def _cmd_reduce(a):
                     boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
                     rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
                     neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips, max_flips=a.max_flips,
+                    swap_memory=a.swap_memory,
                     seed=a.seed, threads=a.threads, check=check)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()

@@ -45,6 +45,7 @@ DEFAULTS = {
     "rel_tol": 1e-9,
     "quantum": 1e-9,
     "seed": 0,
+    "swap_memory": "run",
 }
 
 OPTION_DOCS = {
@@ -65,6 +66,10 @@ OPTION_DOCS = {
     "rel_tol": "a flip must lower the criterion sum by more than rel_tol * sum (plus 1e-12 of the value range)",
     "max_flips": "at most this many flips (swap rounds) after each insertion; default: unlimited for paper "
                  "(section 4 swaps until nothing improves), 6 for greedy (measured: README, \"Beyond the paper\")",
+    "swap_memory": "how long swapping remembers evaluated configurations: 'run' (the whole run, a fixed table "
+                   "of 2 N entries; greedy then evaluates about half as many) or 'call' (the swaps after one "
+                   "insertion); identical results under 'rms' and 'max', rounding-level ties may differ under 'sse'",
+
     "quantum": "relative step to which K is rounded before sorting (rounding noise stays a tie)",
 }
 
@@ -158,7 +163,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
            criterion=None, candidates="all", tie_order="index", own_vertices=True, final_pass=False,
            first_improving=False, boundary_diagonals="mirrored", curvature="direct", ranking="curvature", rel_tol=1e-9,
            quantum=1e-9, seed=0, values="data", greedy_key="max", neighbourhood="kuhn", boundary_flips=None,
-           max_flips=None, threads=1, check=None, progress=None):
+           max_flips=None, swap_memory="run", threads=1, check=None, progress=None):
     """Select points and build the data-dependent tetrahedral mesh (Hamann & Chen 1994).
 
     Parameters
@@ -199,6 +204,17 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         improves).  Default: unlimited for ``paper`` (the paper swaps until no
         configuration improves), 6 for ``greedy``: on 65^3 it takes 18 % less
         time than unlimited at the same errors (README, "Beyond the paper").
+    swap_memory : {"run", "call"}
+        How long swapping remembers the configurations it evaluated (each is keyed
+        by its tets, whose points never change): for the whole run (``"run"``, a
+        fixed table of about 2 N entries of 56 bytes) or during the swaps after
+        one insertion (``"call"``).  Under the ``rms`` and ``max`` criteria a
+        remembered gain is the gain a new evaluation would compute, bit for bit,
+        so the results are identical.  Under ``sse`` a configuration's sum uses
+        the residuals stored per point, and a point on a face shared with a tet
+        outside the configuration keeps the residual that tet computed, so a
+        remembered sum can differ from a new one in the last bits: choices
+        between gains equal up to rounding (symmetric configurations) may differ.
     criterion, candidates, tie_order, own_vertices, final_pass, first_improving,
     boundary_diagonals, curvature, rel_tol, quantum, seed
         The paper's open choices; see :data:`OPTION_DOCS` and the README.
@@ -242,6 +258,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if max_flips is not None and (isinstance(max_flips, bool) or not isinstance(max_flips, (int, np.integer))
                                   or max_flips < 1):
         raise InputError(f"max_flips must be a positive integer, got {max_flips!r}")
+    _check_choice("swap memory", swap_memory, ("call", "run"))
     _check_choice("criterion", criterion, tuple(_mesh.CRITERIA))
     _check_choice("candidate set", candidates, ("all", "interior"))
     _check_choice("tie order", tie_order, TIE_ORDERS)
@@ -275,7 +292,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                    first_improving=bool(first_improving), boundary_diagonals=boundary_diagonals,
                    curvature=curvature, ranking=ranking, greedy_key=greedy_key,
                    neighbourhood=neighbourhood, boundary_flips=bool(boundary_flips), rel_tol=float(rel_tol), quantum=float(quantum), seed=int(seed),
-                   max_flips=None if max_flips is None else int(max_flips),
+                   max_flips=None if max_flips is None else int(max_flips), swap_memory=swap_memory,
                    fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf, values=values_modes)
 
     # --- fixed points and initial triangulation of all points (section 3)
@@ -374,7 +391,7 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
                        pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order,
                        boundary_flips=options["boundary_flips"],
-                       max_rounds=options["max_flips"] or _mesh.UNLIMITED_ROUNDS)
+                       max_rounds=options["max_flips"] or _mesh.UNLIMITED_ROUNDS, memory=options["swap_memory"])
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
@@ -456,7 +473,7 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
     for s in snapshots:
         if s.n_selected in req:
             s.fraction = req[s.n_selected]
-    stats = {"flips": tm.flips, "cases": tm.cases, "tets": int(len(tm.live_ids())),
+    stats = {"flips": tm.flips, "cases": tm.cases, "evaluations": tm.evaluations, "tets": int(len(tm.live_ids())),
              "round_cap_hits": int(tm.counters[_mesh.C_ROUNDCAP])}
     if greedy:
         stats["inserted"] = np.asarray(inserted, np.int64)
