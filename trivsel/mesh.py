@@ -1219,6 +1219,8 @@ def swap(S, seed, nseed, with_neighbours):
     (gains at rounding level could otherwise cycle).  With the ``first`` option the
     first such improving flip is applied instead.  O is then updated with the new
     tets and their neighbours and the search repeats until nothing improves.
+    Evaluations are remembered by configuration (see the comment above
+    ``_KEYLEN``), for this call or, with ``memory="run"``, for the whole run.
     Returns the number of flips made.
     """
     tets = S[_TETS]

@@ -202,7 +202,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         At most this many flips after each insertion (each swap round of section 4
         applies the best flip of O; the search stops earlier when nothing
         improves).  Default: unlimited for ``paper`` (the paper swaps until no
-        configuration improves), 6 for ``greedy``: on 65^3 it takes 18 % less
+        configuration improves), 6 for ``greedy``: on 65^3 it takes 11 % less
         time than unlimited at the same errors (README, "Beyond the paper").
     swap_memory : {"run", "call"}
         How long swapping remembers the configurations it evaluated (each is keyed
