@@ -490,6 +490,26 @@ def test_grid_shared_stencil_fit_matches_per_point_fits(function, n):
     np.testing.assert_array_equal(i1["min_norm"], i0["min_norm"])
 
 
+def test_grid_shared_stencil_fit_flags_underdetermined_rings_on_long_edges():
+    # regression (129^3): the 127 points of each box edge share one 1-ring of 6
+    # neighbours, enough rows for the shared SVD (64), which returned 6 singular
+    # values of a 6 x 10 design and passed it as full rank: K = 44 on the edges
+    # instead of about 1, and the paper method inserted 762 edge points first
+    from trivsel.triangulation import kuhn_edge_neighbours, neighbour_graph
+
+    shape = (4, 4, 131)
+    axes = [np.linspace(-1, 1, s) for s in shape]
+    p = np.stack(np.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
+    f = 0.5 * p[:, 0] ** 2 - p[:, 1] * p[:, 2] + 2 * p[:, 2] ** 2 + p[:, 0]
+    ip, ix = neighbour_graph(*kuhn_edge_neighbours(shape), shape=shape, kind="kuhn")
+    g0, h0, u0, i0 = fit_quadratic(p, f, ip, ix, return_info=True)
+    g1, h1, u1, i1 = fit_quadratic(p, f, ip, ix, grid=True, return_info=True)
+    np.testing.assert_array_equal(i1["ring"], i0["ring"])
+    np.testing.assert_allclose(h1, h0, rtol=0, atol=1e-8)
+    exact = np.array([[1.0, 0, 0], [0, 0, -1], [0, -1, 4]])
+    np.testing.assert_allclose(h1, np.broadcast_to(exact, h1.shape), rtol=0, atol=1e-6)
+
+
 def test_grid_hint_on_scattered_points_changes_nothing(scattered_cloud):
     # rows only share a factorisation where their coordinate offsets agree
     p, _, (ip, ix) = scattered_cloud

@@ -404,7 +404,9 @@ def _fit_shared(points, values, centres, pattern, rtol, chunk_points, need_min_n
     u, scale = _scaled_offsets((points[c0 + pattern] - points[c0])[None], np.ones((1, pattern.size), bool))
     a = _design(u[0])
     uu, sv, vt = np.linalg.svd(a, full_matrices=False)
-    deficient = bool(sv[-1] <= rtol * sv[0])
+    # fewer neighbours than coefficients (a 1-ring on a box edge has 6) is deficient
+    # whatever the min(m, 10) singular values say: the per-point fits pad to 10 rows
+    deficient = bool(pattern.size < _N_COEF or sv[-1] <= rtol * sv[0])
     coef = None
     if not deficient or need_min_norm:
         keep = sv > rtol * sv[0]

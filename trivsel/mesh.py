@@ -419,49 +419,130 @@ def _link(S, t, i, u):
 
 
 @njit(cache=True)
-def _fill_tet(I_, P_, F_, ui_, buf, m, q0, q1, q2, q3, t, pool, top, cand, isvert, ownvert, mark, st,
-              resid, owner, acc, ctr, tolinf):
-    """Step 5 of :func:`_replace` for one new tet t = (q0, q1, q2, q3): its bucket from the
-    cavity's points ``buf[:m]``, its errors (eqs. 14-15), its worst candidate, and the
-    residuals of the points it is the first to cover.  Plain array arguments: inside
-    this loop every array taken from the state tuple would cost a reference count."""
-    L = 0
-    sse = 0.0
-    mx = 0.0
-    cnt = 0
-    best = -1
-    bestr = 0.0
-    pl, qf, fq = _tet_data(I_, P_, F_, q0, q1, q2, q3)
+def _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, ownvert, resid, owner, acc,
+               ctr, tolinf, bstart, blen, tsse, tmax, tcnt, best, bestr):
+    """Step 5 of :func:`_replace`: each new tet's bucket from the cavity's points
+    ``buf[:m]``, its errors (eqs. 14-15) and worst candidate (``best``, ``bestr``),
+    and the residuals of the points, point by point: each point's data is read
+    once, not once per new tet.  The points of a large cavity are spread over
+    memory, and filling one tet after the other re-read them from RAM for every
+    new tet: the paper method on 129^3 spent most of its time there (sampled).
+
+    A point is tested against the new tets in order until one holds it strictly
+    inside (open interiors are disjoint, so no other tet holds it).  Everything
+    comes out as from filling tet after tet, to the last bit: each tet's bucket
+    lists its points in cavity order and its sums run in that order; a point's
+    residual and owner come from the first tet (in order) that holds it; and the
+    global squared-residual sum gets its changes tet by tet, in cavity order
+    within a tet.  The buckets go to the top of the pool, which is compacted first
+    if they do not fit (their exact size is known only here: a bound such as
+    points x new tets made large cavities fail for want of room they did not need).
+    Returns 0, or ERR_UNCOVERED if a point lies in no new tet, or ERR_POOLCAP.
+    """
+    # the new tets' vertices, face planes, vertex coordinates and values
+    Q = np.empty((nnew, 4), np.int64)
+    PL = np.empty((nnew, 16), np.int64)
+    QF = np.empty((nnew, 12), np.float64)
+    FQ = np.empty((nnew, 4), np.float64)
+    for k in range(nnew):
+        t = ids[k]
+        for c in range(4):
+            Q[k, c] = tets[t, c]
+        pl, qf, fq = _tet_data(I_, P_, F_, Q[k, 0], Q[k, 1], Q[k, 2], Q[k, 3])
+        for c in range(16):
+            PL[k, c] = pl[c]
+        for c in range(12):
+            QF[k, c] = qf[c]
+        for c in range(4):
+            FQ[k, c] = fq[c]
+    L = np.zeros(nnew, np.int64)
+    sse = np.zeros(nnew, np.float64)
+    mx = np.zeros(nnew, np.float64)
+    cnt = np.zeros(nnew, np.int64)
+    for k in range(nnew):
+        best[k] = -1
+        bestr[k] = 0.0
+    # (point, tet) memberships in point order, and each point's covering tet and residual change
+    pj = np.empty(m * nnew, np.int32)
+    pk = np.empty(m * nnew, np.int32)
+    cov = np.empty(m, np.int32)
+    delta = np.empty(m, np.float64)
+    npairs = 0
     for j in range(m):
         p = buf[j]
-        inside, nz, val = _locate_at(ui_, (I_[p, 0], I_[p, 1], I_[p, 2]), (P_[p, 0], P_[p, 1], P_[p, 2]),
-                                     pl, qf, fq, p, q0, q1, q2, q3)
-        if not inside:
-            continue
-        pool[top + L] = p
-        L += 1
-        r = F_[p] - val
-        if cand[p] and not isvert[p] and abs(r) > bestr:
-            best = p
-            bestr = abs(r)
-        if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
-            sse += r * r
+        # only what the test needs: every array read here is a likely cache miss
+        pi = (I_[p, 0], I_[p, 1], I_[p, 2])
+        pf = (0.0, 0.0, 0.0) if ui_ else (P_[p, 0], P_[p, 1], P_[p, 2])
+        fp = F_[p]
+        cov[j] = -1
+        for k in range(nnew):
+            q0, q1, q2, q3 = Q[k, 0], Q[k, 1], Q[k, 2], Q[k, 3]
+            inside, nz, val = _locate_at(ui_, pi, pf,
+                                         (PL[k, 0], PL[k, 1], PL[k, 2], PL[k, 3], PL[k, 4], PL[k, 5], PL[k, 6],
+                                          PL[k, 7], PL[k, 8], PL[k, 9], PL[k, 10], PL[k, 11], PL[k, 12],
+                                          PL[k, 13], PL[k, 14], PL[k, 15]),
+                                         (QF[k, 0], QF[k, 1], QF[k, 2], QF[k, 3], QF[k, 4], QF[k, 5], QF[k, 6],
+                                          QF[k, 7], QF[k, 8], QF[k, 9], QF[k, 10], QF[k, 11]),
+                                         (FQ[k, 0], FQ[k, 1], FQ[k, 2], FQ[k, 3]), p, q0, q1, q2, q3)
+            if not inside:
+                continue
+            pj[npairs] = j
+            pk[npairs] = k
+            npairs += 1
+            L[k] += 1
+            r = fp - val
             ar = abs(r)
-            if ar > mx:
-                mx = ar
-            cnt += 1
-        if mark[p] == st:
-            mark[p] = st - 1  # covered
-            old_r = resid[p]
-            acc[0] += r * r - old_r * old_r
-            if tolinf >= 0.0:
-                if abs(old_r) > tolinf:
-                    ctr[C_ABOVE] -= 1
-                if abs(r) > tolinf:
-                    ctr[C_ABOVE] += 1
-            resid[p] = r
-            owner[p] = t
-    return L, sse, mx, cnt, best, bestr
+            if ar > bestr[k] and cand[p] and not isvert[p]:
+                best[k] = p
+                bestr[k] = ar
+            if ownvert or (p != q0 and p != q1 and p != q2 and p != q3):
+                sse[k] += r * r
+                if ar > mx[k]:
+                    mx[k] = ar
+                cnt[k] += 1
+            if cov[j] < 0:  # the first new tet that holds p covers it
+                cov[j] = k
+                old_r = resid[p]
+                delta[j] = r * r - old_r * old_r
+                if tolinf >= 0.0:
+                    if abs(old_r) > tolinf:
+                        ctr[C_ABOVE] -= 1
+                    if ar > tolinf:
+                        ctr[C_ABOVE] += 1
+                resid[p] = r
+                owner[p] = ids[k]
+            if nz == 0:
+                break  # strictly inside: in no other new tet
+    for j in range(m):
+        if cov[j] < 0:
+            return ERR_UNCOVERED
+    # buckets: tet after tet from the top of the pool, each in point order
+    if ctr[C_POOLTOP] + npairs > pool.shape[0]:
+        _compact_pool(S)
+        if ctr[C_POOLTOP] + npairs > pool.shape[0]:
+            return ERR_POOLCAP
+    off = np.empty(nnew, np.int64)
+    s = ctr[C_POOLTOP]
+    for k in range(nnew):
+        t = ids[k]
+        off[k] = s
+        bstart[t] = s
+        blen[t] = L[k]
+        tsse[t] = sse[k]
+        tmax[t] = mx[k]
+        tcnt[t] = cnt[k]
+        s += L[k]
+    for i in range(npairs):
+        k = pk[i]
+        pool[off[k]] = buf[pj[i]]
+        off[k] += 1
+    ctr[C_POOLTOP] = s
+    # the global sum of squared residuals, in the order of tet-by-tet filling
+    for k in range(nnew):
+        for j in range(m):
+            if cov[j] == k:
+                acc[0] += delta[j]
+    return 0
 
 
 # ----------------------------------------------------------------------------- the primitive
@@ -549,11 +630,6 @@ def _replace(S, old, nold, newq, nnew, new_hull):
                     return ids[:0]
     # 5. buckets, per-tet errors, residuals
     pool = S[_POOL]
-    if ctr[C_POOLTOP] + nnew * m > pool.shape[0]:
-        _compact_pool(S)
-        if ctr[C_POOLTOP] + nnew * m > pool.shape[0]:
-            ctr[C_ERROR] = ERR_POOLCAP
-            return ids[:0]
     buf = S[_WBUF]
     resid = S[_RESID]
     owner = S[_OWNER]
@@ -561,31 +637,17 @@ def _replace(S, old, nold, newq, nnew, new_hull):
     fopt = S[_FOPT]
     ownvert = fopt[O_OWNVERT] > 0.0
     tolinf = fopt[O_TOLINF]
-    mark = S[_MARK]
-    st = ctr[C_STAMP]  # points still carrying this stamp are not yet covered
     cand = S[_CAND]
     isvert = S[_ISVERT]
+    best = np.empty(nnew, np.int64)
+    bestr = np.empty(nnew, np.float64)
+    err = _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, ownvert, resid, owner, acc,
+                     ctr, tolinf, S[_BSTART], S[_BLEN], S[_TSSE], S[_TMAX], S[_TCNT], best, bestr)
+    if err != 0:
+        ctr[C_ERROR] = err
+        return ids[:0]
     for k in range(nnew):
-        t = ids[k]
-        q0 = tets[t, 0]
-        q1 = tets[t, 1]
-        q2 = tets[t, 2]
-        q3 = tets[t, 3]
-        top = ctr[C_POOLTOP]
-        S[_BSTART][t] = top
-        L, sse, mx, cnt, best, bestr = _fill_tet(I_, P_, F_, ui_, buf, m, q0, q1, q2, q3, t, pool, top,
-                                                 cand, isvert, ownvert, mark, st, resid, owner, acc,
-                                                 ctr, tolinf)
-        S[_BLEN][t] = L
-        ctr[C_POOLTOP] = top + L
-        S[_TSSE][t] = sse
-        S[_TMAX][t] = mx
-        S[_TCNT][t] = cnt
-        _set_best(S, t, best, bestr)
-    for j in range(m):
-        if mark[buf[j]] == st:
-            ctr[C_ERROR] = ERR_UNCOVERED
-            return ids[:0]
+        _set_best(S, ids[k], best[k], bestr[k])
     return ids
 
 
