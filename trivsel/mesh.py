@@ -419,10 +419,9 @@ def _link(S, t, i, u):
 
 
 @njit(cache=True)
-def _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, ownvert, resid, owner, acc,
-               ctr, tolinf, bstart, blen, tsse, tmax, tcnt, best, bestr):
+def _fill_tets(S, m, ids, nnew, best, bestr):
     """Step 5 of :func:`_replace`: each new tet's bucket from the cavity's points
-    ``buf[:m]``, its errors (eqs. 14-15) and worst candidate (``best``, ``bestr``),
+    ``S[_WBUF][:m]``, its errors (eqs. 14-15) and worst candidate (``best``, ``bestr``),
     and the residuals of the points, point by point: each point's data is read
     once, not once per new tet.  The points of a large cavity are spread over
     memory, and filling one tet after the other re-read them from RAM for every
@@ -438,7 +437,24 @@ def _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, 
     if they do not fit (their exact size is known only here: a bound such as
     points x new tets made large cavities fail for want of room they did not need).
     Returns 0, or ERR_UNCOVERED if a point lies in no new tet, or ERR_POOLCAP.
+    Called once per :func:`_replace`, so taking the arrays out of ``S`` here costs
+    nothing per point.
     """
+    I_ = S[_IC]
+    P_ = S[_P]
+    F_ = S[_F]
+    tets = S[_TETS]
+    buf = S[_WBUF]
+    pool = S[_POOL]
+    cand = S[_CAND]
+    isvert = S[_ISVERT]
+    resid = S[_RESID]
+    owner = S[_OWNER]
+    ctr = S[_CTR]
+    fopt = S[_FOPT]
+    ui_ = fopt[O_USEINT] > 0.0
+    ownvert = fopt[O_OWNVERT] > 0.0
+    tolinf = fopt[O_TOLINF]
     # the new tets' vertices, face planes, vertex coordinates and values
     Q = np.empty((nnew, 4), np.int64)
     PL = np.empty((nnew, 16), np.int64)
@@ -513,7 +529,6 @@ def _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, 
                 owner[p] = ids[k]
             if nz == 0:
                 break  # strictly inside: in no other new tet
-    for j in range(m):
         if cov[j] < 0:
             return ERR_UNCOVERED
     # buckets: tet after tet from the top of the pool, each in point order
@@ -521,27 +536,36 @@ def _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, 
         _compact_pool(S)
         if ctr[C_POOLTOP] + npairs > pool.shape[0]:
             return ERR_POOLCAP
+    top = ctr[C_POOLTOP]
     off = np.empty(nnew, np.int64)
-    s = ctr[C_POOLTOP]
+    s = top
     for k in range(nnew):
         t = ids[k]
         off[k] = s
-        bstart[t] = s
-        blen[t] = L[k]
-        tsse[t] = sse[k]
-        tmax[t] = mx[k]
-        tcnt[t] = cnt[k]
+        S[_BSTART][t] = s
+        S[_BLEN][t] = L[k]
+        S[_TSSE][t] = sse[k]
+        S[_TMAX][t] = mx[k]
+        S[_TCNT][t] = cnt[k]
         s += L[k]
+    ctr[C_POOLTOP] = s
+    # each pair to its tet's bucket; the covering pairs' residual changes in that same
+    # (tet, then point) order: the order in which filling tet after tet summed them
+    dslot = np.zeros(npairs, np.float64)
+    covers = np.zeros(npairs, np.bool_)
     for i in range(npairs):
         k = pk[i]
-        pool[off[k]] = buf[pj[i]]
-        off[k] += 1
-    ctr[C_POOLTOP] = s
-    # the global sum of squared residuals, in the order of tet-by-tet filling
-    for k in range(nnew):
-        for j in range(m):
-            if cov[j] == k:
-                acc[0] += delta[j]
+        j = pj[i]
+        o = off[k]
+        pool[o] = buf[j]
+        if cov[j] == k:
+            covers[o - top] = True
+            dslot[o - top] = delta[j]
+        off[k] = o + 1
+    acc = S[_ACC]
+    for i in range(npairs):
+        if covers[i]:
+            acc[0] += dslot[i]
     return 0
 
 
@@ -558,10 +582,6 @@ def _replace(S, old, nold, newq, nnew, new_hull):
     or edge splits hull faces): then it becomes a hull face.  Returns the
     new tet ids (an empty array and S[_CTR][C_ERROR] set on failure).
     """
-    I_ = S[_IC]
-    P_ = S[_P]
-    F_ = S[_F]
-    ui_ = S[_FOPT][O_USEINT] > 0.0
     tets = S[_TETS]
     nbr = S[_NBR]
     ctr = S[_CTR]
@@ -629,20 +649,9 @@ def _replace(S, old, nold, newq, nnew, new_hull):
                     ctr[C_ERROR] = ERR_LINK
                     return ids[:0]
     # 5. buckets, per-tet errors, residuals
-    pool = S[_POOL]
-    buf = S[_WBUF]
-    resid = S[_RESID]
-    owner = S[_OWNER]
-    acc = S[_ACC]
-    fopt = S[_FOPT]
-    ownvert = fopt[O_OWNVERT] > 0.0
-    tolinf = fopt[O_TOLINF]
-    cand = S[_CAND]
-    isvert = S[_ISVERT]
     best = np.empty(nnew, np.int64)
     bestr = np.empty(nnew, np.float64)
-    err = _fill_tets(S, I_, P_, F_, ui_, buf, m, tets, ids, nnew, pool, cand, isvert, ownvert, resid, owner, acc,
-                     ctr, tolinf, S[_BSTART], S[_BLEN], S[_TSSE], S[_TMAX], S[_TCNT], best, bestr)
+    err = _fill_tets(S, m, ids, nnew, best, bestr)
     if err != 0:
         ctr[C_ERROR] = err
         return ids[:0]
