@@ -11,7 +11,7 @@ Function 4 (exponential) reduced to 10 % of its points:
   10 minutes and 8 GiB;
 * the fitted slopes of log(time) and log(peak memory) against log(points).
 
-Every measurement is :func:`trivsel.scaling.measure`: a fresh Python process
+Every measurement is :func:`trivsel.study.scaling.measure`: a fresh Python process
 that first does an untimed warm-up run of the same method on the 5^3 grid (so
 numba compilation and VTK loading are not timed), then times one run; peak
 memory is the peak resident set size of that process during the timed run
@@ -39,7 +39,7 @@ from pathlib import Path
 import pandas as pd
 
 import trivsel
-from trivsel.scaling import TARGETS, fit_slopes, measure, ratios, scaling_table, target_lines
+from trivsel.study.scaling import TARGETS, fit_slopes, measure, ratios, scaling_table, target_lines
 
 RESULTS = Path(__file__).resolve().parent / "results"
 METHODS = ("paper", "greedy", "vtk")

@@ -41,7 +41,7 @@ from pathlib import Path
 import numpy as np
 
 import trivsel
-from trivsel.baselines import tet_grid, vtk_quadric_decimation
+from trivsel.study.baselines import tet_grid, vtk_quadric_decimation
 from trivsel.data import sample_grid
 
 TARGET_17 = 15.0  # seconds, all five functions on 17^3 to 50 %

@@ -13,9 +13,9 @@ import pandas as pd
 import pytest
 import yaml
 
-from trivsel import ablation as A
-from trivsel import report
-from trivsel.errors import face_residual_rms
+from trivsel.study import ablation as A
+from trivsel.study import report
+from trivsel.norms import face_residual_rms
 
 REPO = Path(__file__).resolve().parents[1]
 

@@ -5,7 +5,7 @@ import itertools
 import numpy as np
 import pytest
 
-from trivsel.baselines import (
+from trivsel.study.baselines import (
     ERROR_KEYS,
     curvature_delaunay,
     errors_at_points,

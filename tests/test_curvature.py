@@ -16,8 +16,9 @@ from trivsel.curvature import (
     tet_normals,
     vertex_normals,
 )
-from trivsel.data import FUNCTIONS, sample_grid
-from trivsel.errors_input import InputError
+from trivsel.data import sample_grid
+from trivsel.functions import FUNCTIONS
+from trivsel.exceptions import InputError
 from trivsel.triangulation import (
     delaunay_tetrahedra,
     edge_neighbours,

@@ -1,5 +1,5 @@
 """Issue 4: greedy selection, fitted values, the matched-count harness of every method
-(trivsel.methods) and its tables, plot and workflow stage."""
+(trivsel.study.comparison) and its tables, plot and workflow stage."""
 
 from __future__ import annotations
 
@@ -16,7 +16,7 @@ import trivsel
 from trivsel.check import check_mesh
 from trivsel.data import sample_grid, scattered
 from trivsel.mesh import TetMesh
-from trivsel.methods import COLUMNS, METHODS, compare_methods, methods_figure, methods_markdown, methods_table, \
+from trivsel.study.comparison import COLUMNS, METHODS, compare_methods, methods_figure, methods_markdown, methods_table, \
     target_check
 from trivsel.selection import count_for_fraction
 from trivsel.triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles

@@ -11,7 +11,7 @@ import pytest
 import trivsel
 from trivsel.check import check_mesh
 from trivsel.data import grid_from_array, sample_grid, scattered
-from trivsel.errors import face_residual_rms
+from trivsel.norms import face_residual_rms
 from trivsel.selection import count_for_fraction
 
 

@@ -13,7 +13,8 @@ import pandas as pd
 import pytest
 
 import trivsel
-from trivsel import compare, report
+from trivsel import regression as compare
+from trivsel.study import report
 from trivsel.triangulation import kuhn_tetrahedra
 
 REPO = Path(__file__).resolve().parents[1]
@@ -215,7 +216,7 @@ def test_compare_command_on_golden_table(tmp_path):
 
 # --------------------------------------------------------------------------- figures
 def test_figures_from_fabricated_meshes(tmp_path):
-    from trivsel import figures
+    from trivsel.study import figures
 
     out, data = fabricated_run(tmp_path, 2)
     errors = pd.read_csv(out / "errors.csv")
@@ -234,7 +235,7 @@ def test_figures_from_fabricated_meshes(tmp_path):
 
 def test_plane_values_reproduce_linear_data(tmp_path):
     """On a mesh the probe returns the piecewise-linear interpolant: exact for linear f."""
-    from trivsel import figures
+    from trivsel.study import figures
 
     data = trivsel.sample_grid(1, 4)
     data.values = 0.3 * data.points[:, 0] - 0.2 * data.points[:, 1] + 0.1 * data.points[:, 2] + 1
@@ -251,7 +252,7 @@ def test_plane_values_exact_on_skinny_mesh():
     pv = pytest.importorskip("pyvista")
     from scipy.spatial import Delaunay
 
-    from trivsel import figures
+    from trivsel.study import figures
 
     rng = np.random.default_rng(7)
     corners = np.array([[x, y, z] for x in (-1, 1) for y in (-1, 1) for z in (-1, 1)], float)
@@ -275,7 +276,7 @@ def test_plane_values_exact_on_skinny_mesh():
 
 
 def test_save_load_data_roundtrip(tmp_path):
-    from trivsel import figures
+    from trivsel.study import figures
 
     data = trivsel.sample_grid(3, 4)
     back = figures.load_data(figures.save_data(data, tmp_path / "d.npz"))

@@ -14,7 +14,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from trivsel.scaling import (SCALE_COLUMNS, fit_power_law, fit_slopes, measure, ratios, scaling_figure,
+from trivsel.study.scaling import (SCALE_COLUMNS, fit_power_law, fit_slopes, measure, ratios, scaling_figure,
                              scaling_markdown, scaling_table)
 
 REPO = Path(__file__).resolve().parents[1]

@@ -12,7 +12,7 @@ import pandas as pd
 import pytest
 import yaml
 
-from trivsel.report import TABLE1_COLUMNS
+from trivsel.study.report import TABLE1_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 SNAKEFILE = REPO / "Snakefile"

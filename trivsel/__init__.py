@@ -3,25 +3,47 @@
 A reproduction and extension of Hamann & Chen (1994), *Data point selection for
 piecewise trilinear approximation*.  Modules follow the paper:
 
-* :mod:`trivsel.data` - the test functions and the grid of section 5 (eq. 18);
+* :mod:`trivsel.functions` - the five test functions of Table 1 (section 5);
+* :mod:`trivsel.data` - point data, the grid of eq. (18), scattered input;
 * :mod:`trivsel.triangulation` - initial triangulation and boundary (sections 1, 3);
 * :mod:`trivsel.curvature` - absolute curvature (section 2, eqs. 4-10);
 * :mod:`trivsel.selection` - ranking and stopping (section 3);
 * :mod:`trivsel.mesh` - the data-dependent tetrahedral mesh (section 4);
-* :mod:`trivsel.errors` - E_RMS and E_inf (section 5, eqs. 19-20).
+* :mod:`trivsel.methods` - the point-selection methods (``paper``, ``greedy``);
+* :mod:`trivsel.norms` - E_RMS and E_inf (section 5, eqs. 19-20);
+* :mod:`trivsel.fitting` - least-squares vertex values on a mesh;
+* :mod:`trivsel.options` - every option, defined once (:class:`Options`);
+* :mod:`trivsel.reduction` - :func:`reduce`, the whole method;
+* :mod:`trivsel.io` - reading user files, writing results;
+* :mod:`trivsel.regression` - comparing error tables against golden ones.
+
+``import trivsel`` is cheap: :func:`reduce` and :func:`load` import the compiled
+kernel and the file readers on first use.  The studies that reproduce and measure
+the paper (Table 1, figures, comparisons with VTK) live in :mod:`trivsel.study`,
+which the library never imports.
 """
 
-from .errors_input import InputError
-from .data import sample_grid, scattered, grid_from_array, PointData, FUNCTIONS
+from .data import PointData, grid_from_array, sample_grid, scattered
+from .exceptions import InputError
+from .functions import FUNCTIONS
+from .options import Options
 
 __version__ = "0.1.0"
 
-
-def reduce(*args, **kwargs):
-    """Select points and build the data-dependent mesh; see :func:`trivsel.reduction.reduce`."""
-    from .reduction import reduce as _reduce
-
-    return _reduce(*args, **kwargs)
+_LAZY = {"reduce": ("reduction", "reduce"), "ReductionResult": ("reduction", "ReductionResult"),
+         "load": ("io", "load"), "write_outputs": ("io", "write_outputs")}
 
 
-__all__ = ["InputError", "sample_grid", "scattered", "grid_from_array", "PointData", "FUNCTIONS", "reduce"]
+def __getattr__(name):
+    if name in _LAZY:
+        import importlib
+
+        module, attr = _LAZY[name]
+        value = getattr(importlib.import_module(f".{module}", __name__), attr)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+__all__ = ["InputError", "Options", "PointData", "FUNCTIONS", "sample_grid", "scattered", "grid_from_array",
+           "reduce", "ReductionResult", "load", "write_outputs"]

@@ -16,50 +16,9 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .errors_input import InputError
+from .exceptions import InputError
 
 __all__ = ["main", "build_parser"]
-
-
-def _add_option_args(p):
-    from .reduction import DEFAULTS, OPTION_DOCS
-
-    g = p.add_argument_group("method options (the paper's open choices; defaults reproduce Table 1)")
-    g.add_argument("--method", default=DEFAULTS["method"], choices=["paper", "greedy"],
-                   help="'paper': curvature ranking (sections 2-4); 'greedy': insert the worst-approximated "
-                        "point next (error-driven, beyond the paper)")
-    g.add_argument("--greedy-key", default="max", choices=["max", "sse"],
-                   help="greedy: next point = largest residual ('max', aims at E_inf) or worst point of the tet "
-                        "with the largest squared-error sum ('sse', aims at E_RMS)")
-    g.add_argument("--values", nargs="+", default=["data"], choices=["data", "fit"],
-                   help="vertex values: the selected points' own ('data', the paper) and/or least-squares "
-                        "values over all points ('fit'); one errors.csv row per snapshot and mode")
-    g.add_argument("--criterion", default=None, choices=["rms", "max", "sse"],
-                   help=OPTION_DOCS["criterion"] + " (default: rms for paper, sse for greedy)")
-    g.add_argument("--candidates", default=DEFAULTS["candidates"], choices=["all", "interior"],
-                   help=OPTION_DOCS["candidates"])
-    g.add_argument("--tie-order", default=DEFAULTS["tie_order"], choices=["index", "reverse", "random", "centre"],
-                   help=OPTION_DOCS["tie_order"])
-    g.add_argument("--boundary-diagonals", default=DEFAULTS["boundary_diagonals"], choices=["kuhn", "mirrored"],
-                   help=OPTION_DOCS["boundary_diagonals"])
-    g.add_argument("--no-vertices-in-error", dest="own_vertices", action="store_false",
-                   help="exclude a tet's own vertices from its error (eqs. 14-15)")
-    g.add_argument("--final-pass", action="store_true", help=OPTION_DOCS["final_pass"])
-    g.add_argument("--first-improving", action="store_true", help=OPTION_DOCS["first_improving"])
-    g.add_argument("--curvature", default=DEFAULTS["curvature"], choices=["direct", "local-frame"],
-                   help=OPTION_DOCS["curvature"])
-    g.add_argument("--boundary-flips", dest="boundary_flips", action="store_true", default=None,
-                   help="also 2-2 flip edges between coplanar hull faces (default: on for greedy, off for paper)")
-    g.add_argument("--no-boundary-flips", dest="boundary_flips", action="store_false")
-    g.add_argument("--neighbourhood", default=DEFAULTS["neighbourhood"], choices=["kuhn", "two-ring", "box"],
-                   help=OPTION_DOCS["neighbourhood"])
-    g.add_argument("--ranking", default=DEFAULTS["ranking"], choices=["curvature", "ascending", "random", "analytic"],
-                   help=OPTION_DOCS["ranking"])
-    g.add_argument("--rel-tol", type=float, default=DEFAULTS["rel_tol"], help=OPTION_DOCS["rel_tol"])
-    g.add_argument("--max-flips", type=int, default=None, help=OPTION_DOCS["max_flips"])
-    g.add_argument("--swap-memory", default=DEFAULTS["swap_memory"], choices=["run", "call"],
-                   help=OPTION_DOCS["swap_memory"])
-    g.add_argument("--seed", type=int, default=DEFAULTS["seed"], help="seed for the random tie order")
 
 
 class _Parser(argparse.ArgumentParser):
@@ -96,15 +55,21 @@ def build_parser():
     r.add_argument("--threads", type=int, default=1,
                    help="threads for the curvature fits, the stage that parallelises (default 1; the result "
                         "does not depend on it)")
-    _add_option_args(r)
+    from .options import add_arguments
+
+    add_arguments(r.add_argument_group("method options (trivsel.Options; the defaults reproduce Table 1)"))
 
     k = sub.add_parser("compile", help="compile the numba kernels into the on-disk cache (once per machine)",
                        description="A reduction compiles its kernels on first use (about 21 s once; they load "
                                    "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
                                    "(swapping; insertion) in two processes side by side, as the workflow's "
                                    "kernels rule does; without --part, everything.")
-    k.add_argument("--method", default="paper", choices=["paper", "greedy"])
-    k.add_argument("--part", type=int, choices=[0, 1], help="one half only (default: both and the driver)")
+    from .methods import METHODS
+
+    k.add_argument("--method", default="paper", choices=list(METHODS))
+    k.add_argument("--part", type=int, choices=[0, 1, 2],
+                   help="0: swapping, 1: insertion (side by side), 2: the drivers once both are cached "
+                        "(default: everything)")
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
                        description="Cells are matched on their key columns and compared with "
@@ -135,7 +100,8 @@ def _progress_line(done, total, e_rms, e_inf, seconds):
 
 
 def _cmd_reduce(a):
-    from .data import resolve_function, sample_grid
+    from .data import sample_grid
+    from .functions import resolve_function
     from .io import load, write_outputs
     from .reduction import reduce
 
@@ -147,21 +113,17 @@ def _cmd_reduce(a):
         data = sample_grid(resolve_function(a.function), a.n)
     else:
         data = load(a.input, a.array)
+    from .options import from_namespace
+
+    options = from_namespace(a)
     check = None
     if a.check:
-        from .check import check_mesh
+        from .mesh import check_mesh
 
         check = check_mesh
-    criterion = a.criterion or ("sse" if a.method == "greedy" else "rms")
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
-    result = reduce(data, progress=_progress_line if show else None, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
-                    method=a.method, criterion=criterion, candidates=a.candidates, tie_order=a.tie_order,
-                    own_vertices=a.own_vertices, final_pass=a.final_pass, first_improving=a.first_improving,
-                    boundary_diagonals=a.boundary_diagonals, curvature=a.curvature, ranking=a.ranking,
-                    rel_tol=a.rel_tol, values=a.values, greedy_key=a.greedy_key,
-                    neighbourhood=a.neighbourhood, boundary_flips=a.boundary_flips, max_flips=a.max_flips,
-                    swap_memory=a.swap_memory,
-                    seed=a.seed, threads=a.threads, check=check)
+    result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
+                    options=options, threads=a.threads, check=check, progress=_progress_line if show else None)
     out = write_outputs(result, a.out, extra={"command": sys.argv})
     df = result.errors_frame()
     print(df.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
@@ -183,7 +145,7 @@ def _cmd_compile(a):
 
 
 def _cmd_compare(a):
-    from .compare import compare_tables, format_mismatches
+    from .regression import compare_tables, format_mismatches
 
     for path in (a.new, a.golden):
         import os

@@ -38,8 +38,9 @@ from __future__ import annotations
 import numpy as np
 import scipy.sparse as sp
 
-from .data import points_values, resolve_function
-from .errors_input import InputError, check_threads
+from .data import points_values
+from .functions import resolve_function
+from .exceptions import InputError, check_threads
 
 __all__ = [
     "fit_quadratic",

@@ -1,7 +1,6 @@
-"""Data: the paper's test functions and the grid of section 5 (eq. 18).
+"""Data: trivariate point data (x, y, z, f) of eq. (1) and the grid of section 5 (eq. 18).
 
-The five trivariate functions of Table 1 are addressable by number (1-5) or by a
-short name.  :func:`sample_grid` evaluates one of them on the
+:func:`sample_grid` evaluates a Table-1 function (:mod:`trivsel.functions`) on the
 ``(n + 1)^3`` grid over ``[-1, 1]^3``
 
 .. math::  x_{i,j,k} = ((2i - n)/n, (2j - n)/n, (2k - n)/n), \\quad i, j, k = 0..n
@@ -19,74 +18,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors_input import InputError
+from .exceptions import InputError
+from .functions import FUNCTIONS, resolve_function
 
-__all__ = [
-    "FUNCTIONS",
-    "PointData",
-    "resolve_function",
-    "evaluate_function",
-    "sample_grid",
-    "scattered",
-]
-
-
-def _f1(x, y, z):
-    return 0.4 * (x**2 + y**2 + z**2)
-
-
-def _f2(x, y, z):
-    return 0.4 * (x**2 - y**2 - z**2)
-
-
-def _f3(x, y, z):
-    return 0.15 * (x**3 + 2 * x**2 * y - x * z**2 + 2 * y**2)
-
-
-def _f4(x, y, z):
-    return np.exp(-0.5 * (x**2 + y**2 + z**2))
-
-
-def _f5(x, y, z):
-    return 0.1 * (np.cos(np.pi * x) + np.cos(np.pi * y) + np.cos(np.pi * z))
-
-
-#: number -> (short name, expression as printed in Table 1, callable)
-FUNCTIONS = {
-    1: ("quadratic", "0.4(x^2 + y^2 + z^2)", _f1),
-    2: ("saddle", "0.4(x^2 - y^2 - z^2)", _f2),
-    3: ("cubic", "0.15(x^3 + 2x^2y - xz^2 + 2y^2)", _f3),
-    4: ("exponential", "exp(-0.5(x^2 + y^2 + z^2))", _f4),
-    5: ("trigonometric", "0.1(cos(pi x) + cos(pi y) + cos(pi z))", _f5),
-}
-_BY_NAME = {name: num for num, (name, _, _) in FUNCTIONS.items()}
-
-
-def resolve_function(function) -> int:
-    """Return the Table-1 number (1-5) of ``function`` given as number or short name.
-
-    Raises
-    ------
-    InputError
-        For an unknown function, naming the bad value and the valid choices.
-    """
-    key = function
-    if isinstance(key, str):
-        s = key.strip().lower()
-        if s in _BY_NAME:
-            return _BY_NAME[s]
-        if s.lstrip("f").isdigit():
-            key = int(s.lstrip("f"))
-    if isinstance(key, (int, np.integer)) and not isinstance(key, bool) and int(key) in FUNCTIONS:
-        return int(key)
-    choices = ", ".join(f"{k} ({v[0]})" for k, v in FUNCTIONS.items())
-    raise InputError(f"unknown function {function!r}: choose one of {choices}")
-
-
-def evaluate_function(function, x, y, z):
-    """Evaluate Table-1 function ``function`` (number or name) at arrays x, y, z."""
-    return FUNCTIONS[resolve_function(function)][2](np.asarray(x, float), np.asarray(y, float),
-                                                    np.asarray(z, float))
+__all__ = ["PointData", "sample_grid", "grid_from_array", "scattered", "points_values"]
 
 
 @dataclass
@@ -207,7 +142,7 @@ def scattered(points, values, name="data") -> PointData:
 
     Rejects NaN/inf, wrong shapes, duplicate points, fewer than 5 points and
     point sets that do not span 3-D space (all coplanar), each with a one-line
-    :class:`~trivsel.errors_input.InputError` naming the bad value.
+    :class:`~trivsel.exceptions.InputError` naming the bad value.
     """
     p, f = points_values(points, values)
     if p.shape[0] < 5:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from .data import PointData, grid_from_array, scattered
-from .errors_input import InputError
+from .exceptions import InputError
 
 __all__ = ["load", "write_outputs", "snapshot_to_pyvista", "fraction_label"]
 

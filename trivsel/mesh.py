@@ -1813,10 +1813,10 @@ def point_weights(S, verts, weights):
 
 # ----------------------------------------------------------------------------- Python side
 
-def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, rel_tol=1e-9,
+def make_state(points, values, ijk=None, *, criterion="rms", vertices_in_error=True, rel_tol=1e-9,
                abs_tol=None, tol_inf=None, first_improving=False, max_rounds=UNLIMITED_ROUNDS,
                tet_capacity=None, pool_capacity=None, greedy=False, greedy_key="max", candidates=None,
-               boundary_flips=False, memory=None, pin=True):
+               boundary_flips=False, swap_memory="run", pin=True):
     """Allocate the flat arrays of an empty mesh over the given original points.
 
     ``memory``: how long :func:`swap` remembers evaluated configurations, ``"call"``
@@ -1839,14 +1839,13 @@ def make_state(points, values, ijk=None, *, criterion="rms", own_vertices=True, 
             abs_tol = abs_tol**2 * N
     if criterion not in CRITERIA:
         raise ValueError(f"unknown swap criterion {criterion!r}: choose one of {sorted(CRITERIA)}")
-    fopt = np.array([1.0 if ijk is not None else 0.0, CRITERIA[criterion], 1.0 if own_vertices else 0.0,
+    fopt = np.array([1.0 if ijk is not None else 0.0, CRITERIA[criterion], 1.0 if vertices_in_error else 0.0,
                      rel_tol, abs_tol, -1.0 if tol_inf is None else float(tol_inf),
                      1.0 if first_improving else 0.0, float(max_rounds), 1.0 if greedy else 0.0,
                      1.0 if greedy_key == "sse" else 0.0, 1.0 if boundary_flips else 0.0])
     if greedy_key not in ("max", "sse"):
         raise ValueError(f"unknown greedy key {greedy_key!r}: choose 'max' or 'sse'")
-    if memory is None:
-        memory = "run" if greedy else "call"
+    memory = swap_memory
     if memory not in ("call", "run"):
         raise ValueError(f"unknown swap memory {memory!r}: choose 'call' or 'run'")
     fopt = np.append(fopt, 1.0 if memory == "run" else 0.0)  # O_RUNMEM
@@ -2045,6 +2044,21 @@ class TetMesh:
     @property
     def counters(self):
         return self.S[_CTR]
+
+    @property
+    def resid(self):
+        """Residuals f - L of the original points (a view, kept current by every operation)."""
+        return self.S[_RESID]
+
+    @property
+    def sse_sum(self):
+        """The global sum of squared residuals, as the kernel keeps it."""
+        return float(self.S[_ACC][0])
+
+    @property
+    def round_cap_hits(self):
+        """How often swapping stopped at ``max_rounds`` flips."""
+        return int(self.S[_CTR][C_ROUNDCAP])
 
     @property
     def error_code(self):
@@ -2253,3 +2267,10 @@ class MeshError(RuntimeError):
     def __init__(self, code, message):
         super().__init__(message)
         self.code = code
+
+
+def check_mesh(mesh, **kwargs):
+    """The mesh-validity checker (:func:`trivsel.check.check_mesh`)."""
+    from .check import check_mesh as _check
+
+    return _check(mesh, **kwargs)

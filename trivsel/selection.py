@@ -22,7 +22,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
-from .errors_input import InputError
+from .exceptions import InputError
 
 __all__ = ["count_for_fraction", "validate_fractions", "candidate_points", "rank_candidates", "TIE_ORDERS"]
 

@@ -1,11 +1,11 @@
 # Optional stage, ablation (issue 5): every open choice of the paper, alone and in
 # combinations, against Table 1.  Off by default (config `ablation: false`, so the paper
 # run stays fast); on with   snakemake -c all --configfile config/ablation.yaml
-# One job per variant runs all functions at the primary n (trivsel.ablation.run_variant);
+# One job per variant runs all functions at the primary n (trivsel.study.ablation.run_variant);
 # ablation_report stacks them into results/report/ablation.csv and ablation.md.
-# Helpers live in the package (trivsel.ablation), so this file has rules only.
+# Helpers live in the package (trivsel.study.ablation), so this file has rules only.
 
-import trivsel.ablation as ablation_pkg
+import trivsel.study.ablation as ablation_pkg
 
 ABLATION_VARIANTS = (
     ablation_pkg.variant_names(config["ablation_variants"]) if config["ablation"] else []

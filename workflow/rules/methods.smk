@@ -4,7 +4,7 @@
 # fitted vertex values, VTK's tetrahedral quadric decimation (median of several runs), a random
 # subset + Delaunay (mean of several seeds) and the paper's curvature order + plain Delaunay -
 # for each function and n, over the Table-1 fractions and the sweep `methods_fractions`.
-# The work is trivsel.methods.compare_methods; these rules only call it and collect.
+# The work is trivsel.study.comparison.compare_methods; these rules only call it and collect.
 
 
 rule methods_run:

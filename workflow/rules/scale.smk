@@ -3,12 +3,12 @@
 # Off by default (config `scale: false`); on with
 #   snakemake -c 1 --configfile config/scale.yaml
 # (-c 1: one measurement at a time, so jobs do not compete for the cores.)
-# One job per (method, n) runs trivsel.scaling.measure: a fresh Python process that warms up
+# One job per (method, n) runs trivsel.study.scaling.measure: a fresh Python process that warms up
 # on the 5^3 grid (numba kernels loaded, never compiled inside the timing), then times one
 # run.  scale_table and scale_figure collect them.  Helpers live in the package
-# (trivsel.scaling), so this file has rules only.
+# (trivsel.study.scaling), so this file has rules only.
 
-import trivsel.scaling as scaling_pkg
+import trivsel.study.scaling as scaling_pkg
 
 SCALE_NS = list(config["scale_n"])
 SCALE_METHODS = list(config["scale_methods"])
@@ -21,7 +21,7 @@ SCALE_TARGETS = (
     if config["scale"]
     else []
 )
-# trivsel.scaling runs trivsel (the core) or VTK via trivsel.baselines
+# trivsel.study.scaling runs trivsel (the core) or VTK via trivsel.study.baselines
 SCALE_CODE = source_hash("scaling.py", "baselines.py") + CODE_CORE
 
 

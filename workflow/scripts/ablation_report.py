@@ -4,7 +4,7 @@ import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.ablation import best_consistent, summarise, write_ablation_report  # noqa: E402
+from trivsel.study.ablation import best_consistent, summarise, write_ablation_report  # noqa: E402
 
 sm = snakemake  # noqa: F821
 long = write_ablation_report(list(sm.input), sm.output.csv, sm.output.md, tol=float(sm.params.tolerance),

@@ -1,4 +1,4 @@
-"""Rule ablation_run: one ablation variant on every configured function (trivsel.ablation)."""
+"""Rule ablation_run: one ablation variant on every configured function (trivsel.study.ablation)."""
 
 import sys
 
@@ -6,7 +6,7 @@ sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
 import pandas as pd  # noqa: E402
 
-from trivsel.ablation import run_variant  # noqa: E402
+from trivsel.study.ablation import run_variant  # noqa: E402
 
 sm = snakemake  # noqa: F821
 name, n = sm.wildcards.ablation_variant, int(sm.wildcards.n)

@@ -4,7 +4,7 @@ import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.report import collect_runs  # noqa: E402
+from trivsel.study.report import collect_runs  # noqa: E402
 
 sm = snakemake  # noqa: F821
 table = collect_runs(zip(list(sm.input), list(sm.params.runs)))

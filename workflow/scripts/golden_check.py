@@ -8,7 +8,7 @@ import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.compare import compare_tables, format_mismatches  # noqa: E402
+from trivsel.regression import compare_tables, format_mismatches  # noqa: E402
 
 sm = snakemake  # noqa: F821
 rtol, atol = float(sm.params.rtol), float(sm.params.atol)

@@ -5,7 +5,7 @@ import time
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.methods import compare_methods  # noqa: E402
+from trivsel.study.comparison import compare_methods  # noqa: E402
 
 sm = snakemake  # noqa: F821
 t0 = time.perf_counter()

@@ -7,7 +7,7 @@ sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
 import pandas as pd  # noqa: E402
 
-from trivsel.methods import methods_markdown, methods_table, target_check  # noqa: E402
+from trivsel.study.comparison import methods_markdown, methods_table, target_check  # noqa: E402
 
 sm = snakemake  # noqa: F821
 table = methods_table(pd.concat([pd.read_csv(p) for p in sm.input], ignore_index=True))

@@ -5,7 +5,7 @@ import sys
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
 import trivsel  # noqa: E402
-from trivsel.figures import save_data  # noqa: E402
+from trivsel.study.figures import save_data  # noqa: E402
 
 function, n = int(snakemake.wildcards.function), int(snakemake.wildcards.n)  # noqa: F821
 data = trivsel.sample_grid(function, n)

@@ -1,11 +1,11 @@
-"""Rule scale_run: one measurement (trivsel.scaling.measure) of one method at one n, in a fresh process."""
+"""Rule scale_run: one measurement (trivsel.study.scaling.measure) of one method at one n, in a fresh process."""
 
 import json
 import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.scaling import measure  # noqa: E402
+from trivsel.study.scaling import measure  # noqa: E402
 
 sm = snakemake  # noqa: F821
 method, n = sm.wildcards.scale_method, int(sm.wildcards.n)

@@ -6,7 +6,7 @@ import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.scaling import fit_slopes, scaling_markdown, scaling_table  # noqa: E402
+from trivsel.study.scaling import fit_slopes, scaling_markdown, scaling_table  # noqa: E402
 
 sm = snakemake  # noqa: F821
 rows = []

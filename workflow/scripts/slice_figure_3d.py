@@ -6,7 +6,7 @@ sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
 import pandas as pd  # noqa: E402
 
-from trivsel.figures import load_data, slice_figure_3d  # noqa: E402
+from trivsel.study.figures import load_data, slice_figure_3d  # noqa: E402
 
 sm = snakemake  # noqa: F821
 data = load_data(sm.input.data)

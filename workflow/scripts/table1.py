@@ -4,7 +4,7 @@ import sys
 
 sys.stdout = sys.stderr = open(snakemake.log[0], "w", buffering=1)  # noqa: F821
 
-from trivsel.report import write_table1  # noqa: E402
+from trivsel.study.report import write_table1  # noqa: E402
 
 sm = snakemake  # noqa: F821
 ablation = getattr(sm.input, "ablation", None) or []  # results/report/ablation.csv with `ablation: true`

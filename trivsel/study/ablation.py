@@ -32,7 +32,7 @@ Groups of variants (:func:`variant_names`): ``singles`` (one choice changed),
 variant with the most cells within 10 %, then within 5 %, then the smallest
 median |deviation|.
 
-    python -m trivsel.ablation --out results/ablation --groups all --jobs 2
+    python -m trivsel.study.ablation --out results/ablation --groups all --jobs 2
     snakemake -c all --configfile config/ablation.yaml        # the workflow's stage
 """
 
@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .report import load_published
+from .published import load_published
 
 __all__ = [
     "CHOICES", "DIAGNOSTICS", "GROUPS", "VARIANTS", "parse_variant", "variant_name", "variant_names",
@@ -196,8 +196,8 @@ def _rounded_count(fraction: float, n_points: int, rounding: str) -> int:
 
 def run_variant(name: str, function: int, n: int = 16, fractions=(0.5, 0.2, 0.1)) -> list:
     """One variant on one Table-1 function: a row per fraction (nominal fraction kept)."""
-    from .data import sample_grid
-    from .reduction import reduce
+    from ..data import sample_grid
+    from ..reduction import reduce
 
     choices = parse_variant(name)
     data = sample_grid(function, n)
@@ -547,7 +547,7 @@ def ablation_markdown(table: pd.DataFrame, published: pd.DataFrame | None = None
     L += notes or ["- Every cell is within reach of a consistent variant."]
     L.append("")
     L += ["## Reproduce", "",
-          "`python -m trivsel.ablation --out DIR --groups all --jobs 2`, or in the workflow "
+          "`python -m trivsel.study.ablation --out DIR --groups all --jobs 2`, or in the workflow "
           "`snakemake -c all --configfile config/ablation.yaml`. Rounding is emulated by asking "
           "`trivsel.reduce` for exact counts; the neighbourhood is its `neighbourhood` option.", ""]
     return "\n".join(L)

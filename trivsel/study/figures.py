@@ -83,7 +83,7 @@ def save_data(data, path):
 
 def load_data(path):
     """Inverse of :func:`save_data`."""
-    from .data import PointData
+    from ..data import PointData
 
     with np.load(path) as z:
         kw = dict(points=z["points"], values=z["values"], name=str(z["name"]))
@@ -96,7 +96,7 @@ def load_data(path):
 def original_mesh(data):
     """All original grid points as a tetrahedral mesh (the Kuhn split of section 5)."""
     pv = _pyvista()
-    from .triangulation import kuhn_tetrahedra
+    from ..triangulation import kuhn_tetrahedra
 
     tets = kuhn_tetrahedra(data.shape)
     cells = np.hstack([np.full((len(tets), 1), 4, dtype=np.int64), tets]).ravel()
@@ -243,7 +243,7 @@ def _panels(data, meshes, errors):
 def _function_title(function, n):
     if function is None:
         return ""
-    from .data import FUNCTIONS
+    from ..functions import FUNCTIONS
 
     short, expr, _ = FUNCTIONS[int(function)]
     s = f"Function {int(function)} ({short}): f(x, y, z) = {expr}"
@@ -418,7 +418,7 @@ def erms_figure(errors, out_png, published=None, functions=None, dpi: int = 110)
     plt = _pyplot()
     import pandas as pd
 
-    from .report import load_published
+    from .published import load_published
 
     df = errors.copy()
     if published is None:
@@ -453,7 +453,7 @@ def erms_figure(errors, out_png, published=None, functions=None, dpi: int = 110)
                           linestyle="none")
             handles.setdefault("published E_RMS (Table 1)", h3)
             handles.setdefault("published E_RMS* (Table 1)", h4)
-        from .report import function_label
+        from .published import function_label
 
         ax.set_title(function_label(fn), fontsize=9.5)
         ax.set_xlabel("selected points (% of all)", fontsize=9)

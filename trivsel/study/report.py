@@ -2,7 +2,7 @@
 
 :func:`assemble_table1` joins the rows of one or more ``errors.csv`` files (as
 written by ``trivsel reduce``) with the published values of Table 1
-(``trivsel/data/table1_published.csv``, copied from Hamann & Chen 1994, Table 1)
+(``trivsel/study/table1_published.csv``, copied from Hamann & Chen 1994, Table 1)
 into the table the workflow writes as ``results/report/table1.csv``::
 
     function,fraction,n_selected,E_rms,E_rms_interior,E_inf,E_inf_interior,
@@ -22,14 +22,15 @@ from __future__ import annotations
 
 import json
 import math
-from importlib import resources
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from .data import FUNCTIONS
-from .errors import face_residual_rms
+from ..functions import FUNCTIONS
+from . import ablation as _abl
+from .published import PUBLISHED_SOURCE, function_label, load_published
+from ..norms import face_residual_rms
 
 __all__ = [
     "TABLE1_COLUMNS",
@@ -54,37 +55,6 @@ TABLE1_COLUMNS = [
 #: Reduction options recorded per run (the workflow's sweepable keys).
 OPTION_KEYS = ["method", "criterion", "candidates", "tie_order", "boundary_diagonals",
                "vertices_in_error", "final_pass", "curvature", "seed"]
-
-_KIND = {
-    "quadratic": "Quadratic polynomial",
-    "saddle": "Quadratic polynomial",
-    "cubic": "Cubic polynomial",
-    "exponential": "Exponential function",
-    "trigonometric": "Trigonometric function",
-}
-
-PUBLISHED_SOURCE = ("Hamann, B. and Chen, J.-L. (1994), Data point selection for piecewise trilinear "
-                    "approximation, Table 1 (n = 16)")
-
-
-def function_label(num: int, with_number: bool = True) -> str:
-    """'4. Exponential function: exp(-0.5(x^2 + y^2 + z^2))' as in Table 1."""
-    short, expr, _ = FUNCTIONS[int(num)]
-    label = f"{_KIND.get(short, short.capitalize())}: {expr}"
-    return f"{int(num)}. {label}" if with_number else label
-
-
-def load_published(path=None) -> pd.DataFrame:
-    """Published Table 1: columns function, expression, fraction, E_rms, E_rms_interior."""
-    if path is None:
-        with resources.files("trivsel").joinpath("data/table1_published.csv").open("r") as fh:
-            df = pd.read_csv(fh)
-    else:
-        df = pd.read_csv(path)
-    df["function"] = df["function"].astype(int)
-    df["fraction"] = df["fraction"].astype(float)
-    return df
-
 
 def read_errors(paths) -> pd.DataFrame:
     """Concatenate ``errors.csv`` files (one per function) into one DataFrame."""
@@ -271,7 +241,7 @@ def table1_markdown(table: pd.DataFrame, tol: float = 0.10, n: int | None = None
 
     lines.append("## Source of the published values")
     lines.append("")
-    lines.append(f"{PUBLISHED_SOURCE}; stored as `trivsel/data/table1_published.csv`.")
+    lines.append(f"{PUBLISHED_SOURCE}; stored as `trivsel/study/table1_published.csv`.")
     lines.append("")
     return "\n".join(lines)
 
@@ -286,8 +256,8 @@ def corners_only_face_rms(function, n: int = 16, diagonals: str = "kuhn") -> flo
     """RMS residual on the boundary points when the faces are interpolated from the 8 corners
     alone (the 12 initial boundary triangles, ``diagonals`` as in :func:`trivsel.reduce`):
     what the face error would be if no face point were selected."""
-    from .data import sample_grid
-    from .triangulation import box_tetrahedra
+    from ..data import sample_grid
+    from ..triangulation import box_tetrahedra
 
     d = sample_grid(function, n)
     tets = box_tetrahedra(d.shape, diagonals)
@@ -359,7 +329,7 @@ def explain_deviations(table: pd.DataFrame, tol: float = 0.10, n: int | None = N
     deviation sits on the faces or inside.  ``face_points`` ({(function,
     n_selected): boundary points selected}) adds how many face points our run
     selected, with the face RMS the 8 corners alone would give; ``ablation`` (the
-    long table of :mod:`trivsel.ablation`, same n) adds, per flagged cell, the
+    long table of :mod:`trivsel.study.ablation`, same n) adds, per flagged cell, the
     closest variant overall, the closest that keeps the curvature order, and the
     best consistent set's value.
 
@@ -371,8 +341,6 @@ def explain_deviations(table: pd.DataFrame, tol: float = 0.10, n: int | None = N
     n_face = n_all - n_int
     closest, best = None, None
     if ablation is not None and len(ablation):
-        from . import ablation as _abl
-
         abl = ablation
         if "n" in abl.columns:
             abl = abl[abl["n"].astype(int) == n_eff]

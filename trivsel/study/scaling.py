@@ -3,8 +3,8 @@
 One measurement reduces Table-1 function 4 (by default) on the ``(n+1)^3`` grid to
 10 % of its points with trivsel's ``paper`` or ``greedy`` method, or decimates the
 same grid with VTK's ``vtkUnstructuredGridQuadricDecimation`` to the same vertex
-count (:func:`trivsel.baselines.vtk_quadric_decimation`), in a **fresh Python
-process** (``python -m trivsel.scaling``), so that every measurement starts from
+count (:func:`trivsel.study.baselines.vtk_quadric_decimation`), in a **fresh Python
+process** (``python -m trivsel.study.scaling``), so that every measurement starts from
 the same state and its peak memory is its own:
 
 1. import trivsel (and VTK for ``vtk``);
@@ -31,7 +31,7 @@ targets of issue 6.
 
 Command line (one measurement in this process; the parent side is :func:`measure`)::
 
-    python -m trivsel.scaling --method greedy --n 32        # prints one JSON line
+    python -m trivsel.study.scaling --method greedy --n 32        # prints one JSON line
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def _reset_peak():
 
 def _one_run(method, data, fraction, seed, threads=1):
     """One run of ``method`` on ``data``; returns the number of points kept."""
-    from .selection import count_for_fraction
+    from ..selection import count_for_fraction
 
     if method == "vtk":
         from .baselines import vtk_quadric_decimation
@@ -124,7 +124,7 @@ def _one_run(method, data, fraction, seed, threads=1):
         n_keep = count_for_fraction(fraction, data.n_points)
         dm = vtk_quadric_decimation(data, n_edges=data.n_points - n_keep, seed=seed)
         return dm.n_vertices
-    from . import reduce
+    from .. import reduce
 
     res = reduce(data, fractions=[fraction], method=method, threads=threads)
     return int(res.snapshots[0].n_selected)
@@ -162,7 +162,7 @@ def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads
         ``peak_reset``, ``warmup_peak_mb`` (peak before the timed run, e.g. numba
         compiling), ``warmup_seconds``, ``function``, ``fraction``.
     """
-    from .data import sample_grid
+    from ..data import sample_grid
 
     if method not in SCALE_METHODS:
         raise ValueError(f"method must be one of {SCALE_METHODS}, got {method!r}")
@@ -213,7 +213,7 @@ def measure(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads=
     RuntimeError
         If the child fails or times out; the message ends with its last output.
     """
-    cmd = [python or sys.executable, "-m", "trivsel.scaling", "--method", str(method), "--n", str(int(n)),
+    cmd = [python or sys.executable, "-m", "trivsel.study.scaling", "--method", str(method), "--n", str(int(n)),
            "--function", str(function), "--fraction", repr(float(fraction)), "--warmup-n", str(int(warmup_n)),
            "--seed", str(int(seed)), "--threads", str(int(threads))]
     env = dict(os.environ, PYTHONUNBUFFERED="1")
@@ -462,8 +462,8 @@ def scaling_markdown(table, *, function=4, fraction=0.1, figure=None, targets=No
            f"Function {function} on the (n+1)^3 grid reduced to {100 * fraction:g} % of its points: trivsel's "
            f"`paper` and `greedy` methods (`trivsel.reduce(sample_grid({function}, n), fractions=[{fraction:g}], "
            f"method=...)`) and VTK's `vtkUnstructuredGridQuadricDecimation` to the same vertex count "
-           f"(`trivsel.baselines.vtk_quadric_decimation`; input grid built inside the timing). Each run is a "
-           f"fresh Python process (`trivsel.scaling.measure`): one untimed warm-up run of the same method on "
+           f"(`trivsel.study.baselines.vtk_quadric_decimation`; input grid built inside the timing). Each run is a "
+           f"fresh Python process (`trivsel.study.scaling.measure`): one untimed warm-up run of the same method on "
            f"the 5^3 grid first (loads the cached numba kernels, or compiles them on the first run in an "
            f"environment, and loads VTK), so no compile time is counted. `seconds`: wall time of the timed "
            f"run; `peak MiB`: peak resident memory of the child during the timed run (its peak mark is reset "
@@ -569,7 +569,7 @@ def scale_runtime(wildcards, attempt):
 
 def main(argv=None):
     """Child side of :func:`measure`: one measurement, printed as a tagged JSON line."""
-    ap = argparse.ArgumentParser(prog="python -m trivsel.scaling", description=__doc__.split("\n\n")[0])
+    ap = argparse.ArgumentParser(prog="python -m trivsel.study.scaling", description=__doc__.split("\n\n")[0])
     ap.add_argument("--method", required=True, choices=SCALE_METHODS)
     ap.add_argument("--n", type=int, required=True)
     ap.add_argument("--function", type=int, default=4)

@@ -71,8 +71,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .errors import error_norms
-from .triangulation import (
+from ..norms import error_norms
+from ..triangulation import (
     boundary_triangles,
     cube_corners,
     delaunay_tetrahedra,
@@ -101,7 +101,7 @@ ERROR_KEYS = ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")
 
 
 def errors_at_points(values, approx, interior_mask=None) -> dict:
-    """Total RMS and maximum errors of eqs. (19)-(20), via :func:`trivsel.errors.error_norms`.
+    """Total RMS and maximum errors of eqs. (19)-(20), via :func:`trivsel.norms.error_norms`.
 
     Parameters
     ----------

@@ -25,7 +25,7 @@ Matched counts: for each fraction the target is ``count_for_fraction(fraction,
 N)`` points, fixed corners included (the count ``reduce`` stops at).  ``paper``,
 ``greedy``, the Delaunay baselines land on it exactly (greedy stops earlier only
 when every residual is zero); VTK lands within ``vtk_tol_points`` at or below
-it in every run (:func:`trivsel.baselines.vtk_matched`).  ``n_target`` is in
+it in every run (:func:`trivsel.study.baselines.vtk_matched`).  ``n_target`` is in
 every row, so the match can be checked.
 
 Errors are eqs. (19)-(20) at every original point.  VTK moves vertices: points
@@ -56,8 +56,9 @@ import time
 import numpy as np
 
 from .baselines import ERROR_KEYS, curvature_delaunay, random_delaunay, tet_grid, vtk_matched
-from .data import PointData, resolve_function, sample_grid
-from .selection import count_for_fraction, validate_fractions
+from ..data import PointData, sample_grid
+from ..functions import resolve_function
+from ..selection import count_for_fraction, validate_fractions
 
 __all__ = [
     "METHODS",
@@ -144,7 +145,7 @@ def compare_methods(data, fractions=(0.5, 0.2, 0.1), *, n=16, methods=METHODS, v
     pandas.DataFrame
         Columns :data:`COLUMNS`, ordered by :func:`methods_table`.
     """
-    from .reduction import reduce
+    from ..reduction import reduce
 
     if not isinstance(data, PointData):
         data = sample_grid(resolve_function(data), n)
@@ -321,7 +322,7 @@ def _pct(f):
 
 
 def _func_label(function):
-    from .data import FUNCTIONS
+    from ..functions import FUNCTIONS
 
     try:
         num = int(function)
@@ -469,7 +470,7 @@ def methods_markdown(df, fractions=None, *, figures=None):
 
 def _split(r, n):
     """'; interior a vs b, faces c vs d' for a grid of n intervals (face RMS from the pair E_RMS, E_RMS*)."""
-    from .errors import face_residual_rms
+    from ..norms import face_residual_rms
 
     try:
         n = int(n)

@@ -1,0 +1,376 @@
+"""The options of a reduction, defined once.
+
+:class:`Options` is a frozen dataclass with one field per choice of the method:
+the choices the paper leaves open (sections 2-5) and the extensions beyond it.
+Each field carries its choices, default, documentation, the paper's reference,
+its command-line flag and its short tag as metadata, and everything else is
+generated from it:
+
+* the ``trivsel reduce`` flags (:func:`add_arguments`, :func:`from_namespace`);
+* the keyword arguments and signature of :func:`trivsel.reduce`;
+* the workflow's sweep axes, path tags and command lines (:func:`variant_tag`,
+  :meth:`Options.cli_args`) and its config schema (:func:`config_schema`);
+* the ablation's choices and the options table in ``docs/options.md``
+  (:func:`options_markdown`).
+
+A field whose default is ``None`` takes the default of the chosen method
+(``DEFAULTS`` of the method's module in :mod:`trivsel.methods`); after
+:meth:`Options.resolve` every field has a concrete value.
+
+Regenerate the generated files with ``python -m trivsel.options``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import numbers
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+
+from .exceptions import InputError
+
+__all__ = ["Options", "option_fields", "add_arguments", "from_namespace", "variant_tag", "config_schema",
+           "options_markdown", "METHOD_DEFAULT"]
+
+#: How the docs and ``--help`` show a default that depends on the method.
+METHOD_DEFAULT = "method's default"
+
+
+def _option(default, doc, *, kind, choices=None, paper=None, tag, flag=None, minimum=None, sequence=False):
+    """A dataclass field with the metadata of one option.
+
+    ``kind`` is ``"choice"``, ``"bool"``, ``"int"`` or ``"float"``; ``sequence``
+    means the value is a tuple of choices (``values``).  ``minimum`` bounds numbers
+    from below (inclusive).
+    """
+    meta = dict(doc=doc, kind=kind, choices=None if choices is None else tuple(choices), paper=paper, tag=tag,
+                flag=flag, minimum=minimum, sequence=sequence)
+    return field(default=default, metadata=meta)
+
+
+def _method_names():
+    from .methods import METHODS
+
+    return tuple(METHODS)
+
+
+@dataclass(frozen=True)
+class Options:
+    """Every choice of a reduction (:func:`trivsel.reduce`); see ``docs/options.md``.
+
+    Construct with keywords; every value is checked at once and a bad one raises
+    :class:`~trivsel.exceptions.InputError` naming the option and the value.
+    Fields defaulting to ``None`` take the method's default (:meth:`resolve`).
+    """
+
+    method: str = _option(
+        "paper", "point selection: 'paper' ranks by absolute curvature (sections 2-4); 'greedy' inserts the "
+        "worst-approximated point next (error-driven, Garland & Heckbert 1995 lifted to 3-D)",
+        kind="choice", paper="sections 2-4", tag="method")
+    criterion: str | None = _option(
+        None, "swap criterion: sum of the tetrahedral RMS errors (eq. 14) 'rms', of the max errors (eq. 15) "
+        "'max', or the squared residuals of the configuration's points, each once 'sse' (the exact change of "
+        "the global L2 error)",
+        kind="choice", choices=("rms", "max", "sse"), paper="section 4, eqs. 14-15", tag="crit")
+    candidates: str = _option(
+        "all", "selectable points: 'all' non-fixed points (face and edge points included; Table 1 needs them) "
+        "or 'interior' only",
+        kind="choice", choices=("all", "interior"), paper="section 3", tag="cand")
+    tie_order: str = _option(
+        "index", "order among equal quantised curvatures: 'index' (C order over (i, j, k)), 'reverse', "
+        "'random' (seeded), 'centre' (nearest the centre first)",
+        kind="choice", choices=("index", "reverse", "random", "centre"), paper="section 3", tag="tie")
+    boundary_diagonals: str = _option(
+        "mirrored", "face diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored' (the "
+        "Kuhn split mirrored in x; matches Table 1 best, the paper does not fix them)",
+        kind="choice", choices=("mirrored", "kuhn"), paper="section 3, Definition 1", tag="diag")
+    vertices_in_error: bool = _option(
+        True, "a tetrahedron's own four vertices (zero residual) count among its points in its error",
+        kind="bool", paper="Definition 2, eqs. 14-15", tag="verr")
+    final_pass: bool = _option(
+        False, "after reaching each snapshot count, swap over all tetrahedra (applied to a copy)",
+        kind="bool", paper="end of section 4", tag="final")
+    first_improving: bool = _option(
+        False, "apply the first improving flip of the neighbourhood O instead of the best one",
+        kind="bool", paper="section 4, step (iii)", tag="first")
+    curvature: str = _option(
+        "direct", "absolute-curvature estimator: 'direct' least-squares quadratic in (x, y, z), or "
+        "'local-frame' (Hamann 1994b: quadratic height function over the tangent space of an estimated 4-D "
+        "normal)",
+        kind="choice", choices=("direct", "local-frame"), paper="section 2, eqs. 4-10", tag="curv")
+    neighbourhood: str = _option(
+        "kuhn", "points of the curvature fit: 'kuhn' edge neighbours of the initial triangulation (2-ring "
+        "where rank-deficient), 'two-ring' always, or 'box' (grids: the 26 grid neighbours)",
+        kind="choice", choices=("kuhn", "two-ring", "box"), paper="section 2", tag="nbhd")
+    ranking: str = _option(
+        "curvature", "insertion order: 'curvature' (descending K, the paper), or the diagnostic orders "
+        "'ascending' (K ascending), 'random' (seeded) and 'analytic' (exact K of a Table-1 function)",
+        kind="choice", choices=("curvature", "ascending", "random", "analytic"), paper="section 3", tag="rank")
+    rel_tol: float = _option(
+        1e-9, "a flip must lower the criterion sum by more than rel_tol times the sum (plus 1e-12 of the "
+        "value range), so that gains at rounding level cannot cycle",
+        kind="float", minimum=0.0, paper="section 4", tag="reltol")
+    quantum: float = _option(
+        1e-9, "relative step to which K is rounded before sorting, so that rounding noise stays a tie",
+        kind="float", minimum=0.0, paper="section 3", tag="quantum")
+    seed: int = _option(
+        0, "seed of the random tie order and of the random ranking",
+        kind="int", minimum=0, tag="seed")
+    greedy_key: str = _option(
+        "max", "greedy only: insert the point with the largest residual ('max', aims at E_inf) or the worst "
+        "point of the tetrahedron with the largest squared-residual sum ('sse', aims at E_RMS)",
+        kind="choice", choices=("max", "sse"), tag="gkey")
+    boundary_flips: bool | None = _option(
+        None, "also flip an edge between two coplanar hull faces to the other diagonal of their "
+        "quadrilateral (2-2 flip), so that the boundary's triangulation adapts too",
+        kind="bool", tag="bflip")
+    max_flips: int | None = _option(
+        None, "at most this many flips (swap rounds) after each insertion; 0: until nothing improves "
+        "(section 4). The final pass is never capped",
+        kind="int", minimum=0, tag="maxflips")
+    swap_memory: str = _option(
+        "run", "how long swapping remembers the configurations it evaluated: 'run' (a fixed table of about "
+        "2 N entries for the whole run) or 'call' (the swaps after one insertion); identical results under "
+        "'rms' and 'max', rounding-level ties may break differently under 'sse'",
+        kind="choice", choices=("run", "call"), tag="mem")
+    values: tuple = _option(
+        ("data",), "vertex values of the approximation: the selected points' own values ('data', the paper: a "
+        "true selection) and/or least-squares values over all points on the same mesh ('fit')",
+        kind="choice", choices=("data", "fit"), paper="section 5, eqs. 19-20", tag="values", sequence=True)
+
+    def __post_init__(self):
+        for f in fields(self):
+            object.__setattr__(self, f.name, _check(f, getattr(self, f.name)))
+
+    # -- derived
+    def resolve(self) -> "Options":
+        """A copy with every method-dependent default (``None``) replaced by the method's value."""
+        from .methods import get_method
+
+        defaults = get_method(self.method).DEFAULTS
+        return replace(self, **{k: v for k, v in defaults.items() if getattr(self, k) is None})
+
+    def to_dict(self) -> dict:
+        """Plain values (``values`` as a list), for ``result.json`` and the workflow."""
+        d = asdict(self)
+        d["values"] = list(d["values"])
+        return d
+
+    def changed(self) -> dict:
+        """The fields that differ from the defaults, in field order."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) != f.default}
+
+    def cli_args(self) -> list:
+        """The ``trivsel reduce`` flags that reproduce these options (changed fields only)."""
+        args = []
+        for name, v in self.changed().items():
+            f = _FIELDS[name]
+            flag = _flag(f)
+            if f.metadata["kind"] == "bool":
+                args.append(flag if v else "--no-" + flag[2:])
+            elif f.metadata["sequence"]:
+                args += [flag, *map(str, v)]
+            elif v is not None:
+                args += [flag, repr(v) if isinstance(v, float) else str(v)]
+        return args
+
+
+_FIELDS = {f.name: f for f in fields(Options)}
+
+
+def option_fields():
+    """The dataclass fields of :class:`Options`, in order (each with its ``metadata``)."""
+    return list(_FIELDS.values())
+
+
+def _choices(f):
+    return _method_names() if f.name == "method" else f.metadata["choices"]
+
+
+def _check(f, v):
+    """One option's value, normalised, or a one-line InputError."""
+    meta, name = f.metadata, f.name
+    if v is None and f.default is None:
+        return None
+    if meta["sequence"]:
+        seq = [v] if isinstance(v, str) else v
+        try:
+            seq = tuple(seq)
+        except TypeError:
+            raise InputError(f"{name} must be a list of {', '.join(_choices(f))}, got {v!r}") from None
+        if not seq:
+            raise InputError(f"{name} must name at least one of {', '.join(_choices(f))}")
+        for x in seq:
+            _check_choice(name, x, _choices(f))
+        return tuple(dict.fromkeys(seq))
+    kind = meta["kind"]
+    if kind == "choice":
+        _check_choice(name, v, _choices(f))
+        return v
+    if kind == "bool":
+        if isinstance(v, bool) or (isinstance(v, numbers.Integral) and v in (0, 1)):
+            return bool(v)
+        raise InputError(f"{name} must be true or false, got {v!r}")
+    if kind == "int":
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise InputError(f"{name} must be an integer, got {v!r}")
+        v = int(v)
+    else:
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise InputError(f"{name} must be a number, got {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise InputError(f"{name} must be finite, got {v!r}")
+    if meta["minimum"] is not None and v < meta["minimum"]:
+        raise InputError(f"{name} must be >= {meta['minimum']:g}, got {v!r}")
+    return v
+
+
+def _check_choice(name, value, choices):
+    if not isinstance(value, str) or value not in choices:
+        raise InputError(f"unknown {name} {value!r}: choose one of {', '.join(map(str, choices))}")
+
+
+# ----------------------------------------------------------------------------- command line
+
+def _flag(f):
+    return f.metadata["flag"] or "--" + f.name.replace("_", "-")
+
+
+def _default_text(f):
+    if f.default is None:
+        return METHOD_DEFAULT
+    if f.metadata["sequence"]:
+        return " ".join(f.default)
+    return str(f.default).lower() if isinstance(f.default, bool) else str(f.default)
+
+
+def add_arguments(parser_or_group):
+    """Add one flag per :class:`Options` field (``--tie-order``, ``--final-pass/--no-final-pass``, ...).
+
+    Every flag defaults to ``None`` (not given), so :func:`from_namespace` passes only
+    what the user set and :class:`Options` supplies the rest."""
+    for f in option_fields():
+        meta = f.metadata
+        help_ = f"{meta['doc']} (default: {_default_text(f)})"
+        kw = dict(dest=f.name, default=None, help=help_)
+        if meta["kind"] == "bool":
+            parser_or_group.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kw)
+        elif meta["kind"] == "choice":
+            parser_or_group.add_argument(_flag(f), choices=_choices(f), nargs="+" if meta["sequence"] else None,
+                                         metavar=None, **kw)
+        else:
+            parser_or_group.add_argument(_flag(f), type=int if meta["kind"] == "int" else float, **kw)
+
+
+def from_namespace(ns) -> Options:
+    """:class:`Options` from parsed arguments (only the flags given override the defaults)."""
+    given = {f.name: getattr(ns, f.name) for f in option_fields() if getattr(ns, f.name, None) is not None}
+    return Options(**given)
+
+
+# ----------------------------------------------------------------------------- workflow
+
+def variant_tag(options: Options) -> str:
+    """Directory name of an option combination: ``default``, or the changed fields as
+    ``tag~value`` joined by ``_`` in field order (e.g. ``crit~max_tie~random``)."""
+    changed = options.changed()
+    if not changed:
+        return "default"
+
+    def text(v):
+        if isinstance(v, bool):
+            return "yes" if v else "no"
+        if isinstance(v, tuple):
+            return "+".join(v)
+        return str(v).replace("_", "-")
+
+    return "_".join(f"{_FIELDS[k].metadata['tag']}~{text(v)}" for k, v in changed.items())
+
+
+def config_schema() -> dict:
+    """JSON schema of the workflow's ``reduce: options:`` section: every field is a
+    list of values (a sweep axis) with the field's type, choices and bounds."""
+    props = {}
+    for f in option_fields():
+        meta = f.metadata
+        if meta["kind"] == "choice":
+            item = {"type": "string", "enum": list(_choices(f))}
+        elif meta["kind"] == "bool":
+            item = {"type": "boolean"}
+        elif meta["kind"] == "int":
+            item = {"type": "integer"}
+        else:
+            item = {"type": "number"}
+        if meta["minimum"] is not None:
+            item["minimum"] = meta["minimum"]
+        if meta["sequence"]:
+            item = {"type": "array", "items": item, "minItems": 1, "uniqueItems": True}
+        if f.default is None:
+            item = {"anyOf": [item, {"type": "null"}]}
+        default = list(f.default) if meta["sequence"] else f.default
+        props[f.name] = {"type": "array", "items": item, "minItems": 1, "default": [default],
+                         "description": meta["doc"] + (f" ({meta['paper']})" if meta["paper"] else "")}
+    return {"$schema": "https://json-schema.org/draft/2020-12/schema",
+            "description": "Options of a reduction (generated from trivsel.options.Options by "
+                           "`python -m trivsel.options`; do not edit). Every key is a list: a sweep axis; "
+                           "null takes the method's default.",
+            "type": "object", "properties": props, "additionalProperties": False}
+
+
+# ----------------------------------------------------------------------------- docs
+
+def options_markdown() -> str:
+    """The options table of ``docs/options.md``."""
+    from .methods import METHODS
+
+    lines = ["# Options", "",
+             "Generated from `trivsel.options.Options` by `python -m trivsel.options`; do not edit.",
+             "Every option is a keyword of `trivsel.reduce` (and a field of `trivsel.Options`), a flag of",
+             "`trivsel reduce` and a sweep axis of the workflow (`reduce: options:` in `config.yaml`).", "",
+             "| option | flag | default | values | paper | what |", "|---|---|---|---|---|---|"]
+    for f in option_fields():
+        meta = f.metadata
+        flag = _flag(f)
+        if meta["kind"] == "bool":
+            flag = f"{flag} / --no-{flag[2:]}"
+        if meta["kind"] == "choice":
+            values = ", ".join(f"`{c}`" for c in _choices(f))
+        elif meta["kind"] == "bool":
+            values = "true, false"
+        else:
+            values = f"{meta['kind']} >= {meta['minimum']:g}"
+        lines.append(f"| `{f.name}` | `{flag}` | {_default_text(f)} | {values} | {meta['paper'] or '-'} "
+                     f"| {meta['doc']} |")
+    lines += ["", "Method defaults (the fields shown as \"" + METHOD_DEFAULT + "\"):", ""]
+    for name, module in METHODS.items():
+        items = ", ".join(f"`{k}` = {v!r}" for k, v in module.DEFAULTS.items())
+        lines.append(f"- `{name}`: {items}")
+    return "\n".join(lines) + "\n"
+
+
+def _main(argv=None):
+    import json
+    from pathlib import Path
+
+    ap = argparse.ArgumentParser(prog="python -m trivsel.options",
+                                 description="Write the files generated from trivsel.options.Options.")
+    ap.add_argument("--root", default=".", help="repository root (default: the current folder)")
+    ap.add_argument("--check", action="store_true", help="only check that the files are up to date")
+    a = ap.parse_args(argv)
+    root = Path(a.root)
+    outputs = {root / "docs" / "options.md": options_markdown(),
+               root / "workflow" / "schemas" / "options.schema.json": json.dumps(config_schema(), indent=1) + "\n"}
+    stale = [p for p, text in outputs.items() if not p.exists() or p.read_text() != text]
+    if a.check:
+        for p in stale:
+            print(f"{p} is out of date: run python -m trivsel.options")
+        return 1 if stale else 0
+    for p in stale:
+        p.write_text(outputs[p])
+        print(f"wrote {p}")
+    return 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(_main())
