@@ -137,7 +137,7 @@ def main(argv=None):
               f"(last {g.loc['seconds', 'slope_last']:.2f}), peak memory {g.loc['peak_mb', 'slope']:.2f} "
               f"(last {g.loc['peak_mb', 'slope_last']:.2f})")
 
-    print("\ntargets of issue 6:")
+    print("\ntargets:")
     for line in target_lines(table, slopes, ratios(table)):
         print("  " + line.replace("**", "").lstrip("- "))
     print(f"\n{len(raw)} measurements in {time.perf_counter() - t_start:.0f} s; load average now "

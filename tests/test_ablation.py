@@ -1,4 +1,4 @@
-"""The ablation (issue 5): variant names, summary, closest variants and the best consistent
+"""The ablation: variant names, summary, closest variants and the best consistent
 set on fabricated tables; the explanation of deviating Table-1 cells; the emulated
 choices on a tiny grid; and the workflow's ablation rules on a tiny configuration."""
 
@@ -30,7 +30,7 @@ def test_variant_names_round_trip_and_groups():
     singles = A.variant_names("singles")
     assert singles[0] == "default" and all(len(A.parse_variant(v)) == 1 for v in singles[1:])
     assert {"rounding=floor", "rounding=half-even", "neighbourhood=box", "neighbourhood=two-ring",
-            "own_vertices=no", "final_pass=yes", "first_improving=yes", "candidates=interior"} <= set(singles)
+            "vertices_in_error=no", "final_pass=yes", "first_improving=yes", "candidates=interior"} <= set(singles)
     assert A.is_diagnostic("ranking=random") and not A.is_diagnostic("criterion=max")
     allv = A.variant_names("all")
     assert len(allv) == len(set(allv)) and len(allv) == len(A.VARIANTS)

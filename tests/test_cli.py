@@ -110,7 +110,7 @@ def _run_cli(*args):
     (["--function", "1", "--n", "1"], "n must be an integer >= 2, got 1"),
     (["missing.vti"], "does not exist"),
     (["--function", "1", "--threads", "0"], "threads must be an integer >= 1, got 0"),
-    (["--function", "1", "--method", "greedy", "--max-flips", "0"], "max_flips must be a positive integer, got 0"),
+    (["--function", "1", "--method", "greedy", "--max-flips", "-2"], "max_flips must be >= 0, got -2"),
     (["--function", "1", "--swap-memory", "forever"], "argument --swap-memory: invalid choice: 'forever'"),
     (["--function", "1", "--method", "simplex"], "argument --method: invalid choice: 'simplex'"),
     (["--function", "1", "--max-flips", "two"], "argument --max-flips: invalid int value: 'two'"),

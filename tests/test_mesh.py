@@ -229,7 +229,7 @@ def test_random_order_on_a_grid_checked_after_every_operation(seed, criterion):
     idx = np.arange(n + 1)
     ijk = np.stack(np.meshgrid(idx, idx, idx, indexing="ij"), -1).reshape(-1, 3)
     vals = rng.normal(size=len(ijk))
-    fixed = box_tetrahedra((n + 1,) * 3)
+    fixed = box_tetrahedra((n + 1,) * 3, "kuhn")
     corners = np.unique(fixed)
     order = rng.permutation(np.setdiff1d(np.arange(len(ijk)), corners))
     tm, r = _run_checked(ijk, vals, True, order, fixed, criterion, boundary_flips=bflips)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 import trivsel
+import trivsel.methods
 from trivsel.check import check_mesh
 from trivsel.data import grid_from_array, sample_grid, scattered
 from trivsel.norms import face_residual_rms
@@ -93,7 +94,7 @@ def test_interior_candidates_never_select_boundary_points():
 @pytest.mark.parametrize("opts", [
     {"criterion": "max"}, {"criterion": "sse"}, {"tie_order": "reverse"}, {"tie_order": "random", "seed": 3},
     {"tie_order": "centre"}, {"final_pass": True}, {"first_improving": True}, {"boundary_diagonals": "mirrored"},
-    {"own_vertices": False}, {"curvature": "local-frame"}, {"ranking": "ascending"}, {"ranking": "random"},
+    {"vertices_in_error": False}, {"curvature": "local-frame"}, {"ranking": "ascending"}, {"ranking": "random"},
     {"ranking": "analytic"}, {"boundary_flips": True}, {"method": "greedy"}, {"method": "greedy", "greedy_key": "sse"},
 ])
 def test_every_option_gives_a_valid_mesh(opts):
@@ -138,12 +139,12 @@ def test_tolerance_stop_rms_and_inf():
 
 
 def test_max_flips_caps_the_swap_after_each_insertion_but_not_the_final_pass():
-    from trivsel.reduction import GREEDY_MAX_FLIPS
+    GREEDY_MAX_FLIPS = trivsel.methods.greedy.DEFAULTS["max_flips"]
 
     d = sample_grid(5, 10)
     default = trivsel.reduce(d, fractions=[0.1], method="greedy")
     capped = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=GREEDY_MAX_FLIPS)
-    free = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=10**5)
+    free = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=0)
     assert default.options["max_flips"] == GREEDY_MAX_FLIPS
     np.testing.assert_array_equal(default.selected, capped.selected)
     assert default.stats["round_cap_hits"] > 0 and free.stats["round_cap_hits"] == 0
@@ -151,7 +152,7 @@ def test_max_flips_caps_the_swap_after_each_insertion_but_not_the_final_pass():
     assert one.stats["round_cap_hits"] > default.stats["round_cap_hits"]
     assert sum(one.stats["flips"].values()) < sum(free.stats["flips"].values())
     # the paper's method swaps until nothing improves
-    assert trivsel.reduce(d, fractions=[0.1]).options["max_flips"] is None
+    assert trivsel.reduce(d, fractions=[0.1]).options["max_flips"] == 0  # paper: until nothing improves
     # the final pass (end of section 4) is not capped: it flips more than once
     fp = trivsel.reduce(d, fractions=[0.1], method="greedy", max_flips=1, final_pass=True)
     assert sum(fp.snapshots[-1].flips.values()) > sum(one.snapshots[-1].flips.values()) + 1
@@ -200,10 +201,10 @@ def test_count_stop():
     ({"count": 10**6}, "count must be an integer"),
     ({"tol_rms": -1.0}, "tol_rms"),
     ({"fractions": [0.5], "criterion": "l3"}, "unknown criterion"),
-    ({"fractions": [0.5], "max_flips": 0}, "max_flips must be a positive integer, got 0"),
-    ({"fractions": [0.5], "max_flips": 2.5}, "max_flips must be a positive integer, got 2.5"),
-    ({"fractions": [0.5], "max_flips": True}, "max_flips must be a positive integer, got True"),
-    ({"fractions": [0.5], "swap_memory": "forever"}, "unknown swap memory 'forever': choose one of call, run"),
+    ({"fractions": [0.5], "max_flips": -1}, "max_flips must be >= 0, got -1"),
+    ({"fractions": [0.5], "max_flips": 2.5}, "max_flips must be an integer, got 2.5"),
+    ({"fractions": [0.5], "max_flips": True}, "max_flips must be an integer, got True"),
+    ({"fractions": [0.5], "swap_memory": "forever"}, "unknown swap_memory 'forever': choose one of run, call"),
     ({}, "give fractions"),
 ])
 def test_bad_arguments_raise_input_error(kwargs, message):

@@ -276,13 +276,19 @@ def test_plane_values_exact_on_skinny_mesh():
 
 
 def test_save_load_data_roundtrip(tmp_path):
-    from trivsel.study import figures
+    from trivsel.io import load, save_npz
 
     data = trivsel.sample_grid(3, 4)
-    back = figures.load_data(figures.save_data(data, tmp_path / "d.npz"))
+    back = load(save_npz(data, tmp_path / "d.npz"))
     np.testing.assert_array_equal(back.values, data.values)
     np.testing.assert_array_equal(back.ijk, data.ijk)
+    np.testing.assert_allclose(back.points, data.points, atol=1e-15)
     assert back.shape == data.shape and back.interior_mask().sum() == 27
+    pts = trivsel.scattered(data.points[:20] + 0.01 * np.arange(20)[:, None], data.values[:20])
+    back = load(save_npz(pts, tmp_path / "p.npz"))
+    np.testing.assert_array_equal(back.points, pts.points)
+    np.testing.assert_array_equal(back.values, pts.values)
+    assert not back.is_grid
 
 
 def test_golden_table_has_the_table1_layout():

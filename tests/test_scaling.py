@@ -1,4 +1,4 @@
-"""Scaling study (issue 6): power-law fits, the table/figure/summary assembly on fabricated
+"""Scaling study: power-law fits, the table/figure/summary assembly on fabricated
 measurements, one real measurement in a child process, and the workflow's scale stage on a
 tiny configuration (n = 4, 6; paper, greedy, vtk) through a subprocess."""
 
@@ -132,7 +132,7 @@ def test_scale_stage_tiny(tmp_path):
     assert set(zip(trivsel_rows.n, trivsel_rows.n_selected)) == {(4, 13), (6, 34)}  # 12.5 rounds up
     assert (table.seconds > 0).all() and (table.peak_mb >= table.base_mb).all()
     md = (rep / "scaling.md").read_text()
-    assert "## Fitted slopes" in md and "| paper | 6 | 343 |" in md and "## Targets of issue 6" in md
+    assert "## Fitted slopes" in md and "| paper | 6 | 343 |" in md and "## Targets" in md
     assert (rep / "figures" / "scaling.png").stat().st_size > 10_000
     one = json.loads((tmp_path / "results" / "scale" / "vtk" / "n6.json").read_text())
     assert one["method"] == "vtk" and one["warmup_seconds"] > 0

@@ -26,11 +26,10 @@ which the library never imports.
 from .data import PointData, grid_from_array, sample_grid, scattered
 from .exceptions import InputError
 from .functions import FUNCTIONS
-from .options import Options
 
 __version__ = "0.1.0"
 
-_LAZY = {"reduce": ("reduction", "reduce"), "ReductionResult": ("reduction", "ReductionResult"),
+_LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"), "ReductionResult": ("reduction", "ReductionResult"),
          "load": ("io", "load"), "write_outputs": ("io", "write_outputs")}
 
 

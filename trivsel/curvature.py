@@ -53,8 +53,7 @@ __all__ = [
     "analytic_absolute_curvature",
 ]
 
-#: Monomials of the local quadratic, in coefficient order.
-MONOMIALS = ("1", "x", "y", "z", "x^2", "y^2", "z^2", "xy", "xz", "yz")
+#: Coefficients of the local quadratic: 1, x, y, z, x^2, y^2, z^2, xy, xz, yz.
 _N_COEF = 10
 
 

@@ -4,7 +4,7 @@ Input formats (:func:`load`):
 
 * ``.vti`` (VTK image data) and legacy ``.vtk`` files holding structured points:
   a regular grid; it takes the exact integer path and keeps its origin and spacing;
-* ``.vtu``, ``.vtp``, ``.vtk`` (unstructured) and other pyvista-readable meshes:
+* ``.vtu``, ``.vtp``, ``.vts``, ``.vtr`` and other legacy ``.vtk`` datasets:
   scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
@@ -28,7 +28,7 @@ import numpy as np
 from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError
 
-__all__ = ["load", "write_outputs", "snapshot_to_pyvista", "fraction_label"]
+__all__ = ["READERS", "load", "save_npz", "write_outputs", "snapshot_to_pyvista", "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -49,49 +49,53 @@ def _pick_array(names, array, path):
     raise InputError(f"{path} has several point-data arrays ({', '.join(names)}); choose one with --array")
 
 
-def load(path, array: str | None = None) -> PointData:
-    """Read a user file into :class:`~trivsel.data.PointData` (see the module docstring)."""
-    p = Path(path)
-    if not p.exists():
-        raise InputError(f"input file {str(p)!r} does not exist")
-    ext = p.suffix.lower()
-    name = p.stem
-    if ext == ".csv":
-        import pandas as pd
+def _read_csv(p, array):
+    """Scattered points from columns ``x, y, z`` and a value column (``value`` or ``array``)."""
+    import pandas as pd
 
-        try:
-            df = pd.read_csv(p)
-        except Exception as exc:  # pandas raises many types
-            raise InputError(f"cannot read CSV {str(p)!r}: {exc}") from None
-        cols = {c.strip().lower(): c for c in df.columns}
-        missing = [c for c in ("x", "y", "z") if c not in cols]
-        if missing:
-            raise InputError(f"CSV {str(p)!r} lacks column(s) {', '.join(missing)}; need x, y, z and a value column")
-        others = [c for c in df.columns if c.strip().lower() not in ("x", "y", "z")]
-        if array is None and "value" in cols:
-            array = cols["value"]
-        col = _pick_array(others, array, p)
-        try:
-            pts = df[[cols["x"], cols["y"], cols["z"]]].to_numpy(float)
-            vals = df[col].to_numpy(float)
-        except ValueError as exc:
-            raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
-        return scattered(pts, vals, name=name)
-    if ext == ".npz":
-        try:
-            z = np.load(p)
-        except Exception as exc:
-            raise InputError(f"cannot read {str(p)!r}: {exc}") from None
-        key = array or "values"
-        if key not in z:
-            raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
-        v = np.asarray(z[key])
-        if v.ndim == 3:
-            return grid_from_array(v, z["origin"] if "origin" in z else (0, 0, 0),
-                                   z["spacing"] if "spacing" in z else (1, 1, 1), name=name)
-        if "points" not in z:
-            raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
-        return scattered(z["points"], v, name=name)
+    try:
+        df = pd.read_csv(p)
+    except Exception as exc:  # pandas raises many types
+        raise InputError(f"cannot read CSV {str(p)!r}: {exc}") from None
+    cols = {c.strip().lower(): c for c in df.columns}
+    missing = [c for c in ("x", "y", "z") if c not in cols]
+    if missing:
+        raise InputError(f"CSV {str(p)!r} lacks column(s) {', '.join(missing)}; need x, y, z and a value column")
+    others = [c for c in df.columns if c.strip().lower() not in ("x", "y", "z")]
+    if array is None and "value" in cols:
+        array = cols["value"]
+    col = _pick_array(others, array, p)
+    try:
+        pts = df[[cols["x"], cols["y"], cols["z"]]].to_numpy(float)
+        vals = df[col].to_numpy(float)
+    except ValueError as exc:
+        raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
+    return scattered(pts, vals, name=p.stem)
+
+
+def _read_npz(p, array):
+    """The layout :func:`save_npz` writes: a 3-D ``values`` grid (indexed [i, j, k] = x, y, z)
+    with optional ``origin`` and ``spacing``, or ``points`` (N x 3) and 1-D ``values``."""
+    try:
+        z = np.load(p)
+    except Exception as exc:
+        raise InputError(f"cannot read {str(p)!r}: {exc}") from None
+    key = array or "values"
+    if key not in z:
+        raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
+    v = np.asarray(z[key])
+    name = str(z["name"]) if "name" in z else p.stem
+    if v.ndim == 3:
+        return grid_from_array(v, z["origin"] if "origin" in z else (0, 0, 0),
+                               z["spacing"] if "spacing" in z else (1, 1, 1), name=name)
+    if "points" not in z:
+        raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
+    return scattered(z["points"], v, name=name)
+
+
+def _read_vtk(p, array):
+    """VTK files through pyvista: image data is a grid (exact integer path, origin and
+    spacing kept); any other dataset gives scattered points."""
     import pyvista as pv
 
     try:
@@ -109,8 +113,42 @@ def load(path, array: str | None = None) -> PointData:
         if np.any(np.asarray(mesh.direction_matrix) != np.eye(3)):
             raise InputError(f"image {str(p)!r} has a rotated direction matrix; not supported")
         v3 = vals.reshape((nz, ny, nx)).transpose(2, 1, 0)  # VTK order is x fastest
-        return grid_from_array(v3, mesh.origin, mesh.spacing, name=name)
-    return scattered(np.asarray(mesh.points, float), vals, name=name)
+        return grid_from_array(v3, mesh.origin, mesh.spacing, name=p.stem)
+    return scattered(np.asarray(mesh.points, float), vals, name=p.stem)
+
+
+#: File suffix -> reader ``(path, array) -> PointData``; :func:`load` dispatches on it.
+READERS = {".csv": _read_csv, ".npz": _read_npz, ".vti": _read_vtk, ".vtk": _read_vtk, ".vtu": _read_vtk,
+           ".vtp": _read_vtk, ".vts": _read_vtk, ".vtr": _read_vtk}
+
+
+def load(path, array: str | None = None) -> PointData:
+    """Read a user file into :class:`~trivsel.data.PointData` by its suffix (:data:`READERS`;
+    see the module docstring)."""
+    p = Path(path)
+    if not p.exists():
+        raise InputError(f"input file {str(p)!r} does not exist")
+    reader = READERS.get(p.suffix.lower())
+    if reader is None:
+        raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: "
+                         f"read {', '.join(READERS)}")
+    return reader(p, array)
+
+
+def save_npz(data: PointData, path):
+    """Write ``data`` in the ``.npz`` layout :func:`load` reads: a grid as a 3-D ``values``
+    array with ``origin`` and ``spacing``, scattered data as ``points`` and ``values``."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    arrays = {"name": np.array(str(data.name))}
+    if data.is_grid:
+        arrays.update(values=np.asarray(data.values).reshape(data.shape), origin=np.asarray(data.origin, float),
+                      spacing=np.asarray(data.spacing, float))
+    else:
+        arrays.update(points=data.points, values=data.values)
+    with open(path, "wb") as fh:
+        np.savez_compressed(fh, **arrays)
+    return path
 
 
 def snapshot_to_pyvista(result, snapshot):

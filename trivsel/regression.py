@@ -23,13 +23,12 @@ from pathlib import Path
 
 import pandas as pd
 
+from .options import option_fields
+
 __all__ = ["Mismatch", "compare_tables", "compare_frames", "format_mismatches", "KEY_COLUMNS", "IGNORED_COLUMNS"]
 
 #: Columns that identify a row (used when present in both tables).
-KEY_COLUMNS = (
-    "function", "n", "method", "values", "variant", "criterion", "candidates", "tie_order",
-    "boundary_diagonals", "vertices_in_error", "final_pass", "curvature", "seed", "fraction",
-)
+KEY_COLUMNS = ("function", "n", "variant", *(f.name for f in option_fields()), "fraction")
 #: Columns never compared: wall-clock times vary from run to run.
 IGNORED_COLUMNS = ("seconds", "wall_seconds", "reduce_seconds", "time", "timestamp")
 

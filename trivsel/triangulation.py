@@ -11,8 +11,8 @@ Tetrahedra are index quadruples (eq. 3), always stored positively oriented:
 Definition 1: a face belonging to exactly one tetrahedron is a *boundary
 triangle*; its vertices are *boundary vertices*.  For a box-shaped grid the
 redundant boundary points are dropped and only the 8 corners are kept (the
-boundary polyhedron is 12 triangles, section 5); :func:`cube_boundary_triangles`
-gives those 12 triangles.
+boundary polyhedron is 12 triangles, section 5); :func:`box_tetrahedra` gives
+the six tetrahedra on the corners whose boundary they are.
 """
 
 from __future__ import annotations
@@ -31,9 +31,7 @@ __all__ = [
     "edge_neighbours",
     "kuhn_edge_neighbours",
     "neighbour_graph",
-    "two_ring",
     "cube_corners",
-    "cube_boundary_triangles",
     "hull_triangles",
     "hull_boundary_mask",
 ]
@@ -98,12 +96,6 @@ def delaunay_tetrahedra(points) -> np.ndarray:
     return tets[np.abs(vol) > 0]
 
 
-def _faces(tets):
-    """All 4 faces of every tet, each as a sorted triple, with the opposite local vertex."""
-    f = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]], tets[:, [0, 1, 2]]])
-    return f
-
-
 def boundary_triangles(tets) -> np.ndarray:
     """Faces belonging to exactly one tetrahedron (Definition 1), oriented outward.
 
@@ -111,8 +103,7 @@ def boundary_triangles(tets) -> np.ndarray:
     their negative side, i.e. ``orient3d(a, b, c, inside) < 0``.
     """
     tets = np.asarray(tets, np.int64)
-    # face opposite local vertex i, ordered so that (face, vertex i) is positive
-    # for positively oriented tets: opp0 = (1,3,2)?  We orient explicitly below.
+    # the face opposite local vertex i, ordered so that the tet's vertex i lies on its negative side
     faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
     key = np.sort(faces, axis=1)
     _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
@@ -198,17 +189,6 @@ def neighbour_graph(indptr, indices, shape=None, kind: str = "kuhn"):
     return a.indptr.astype(np.int64), a.indices.astype(np.int64)
 
 
-def two_ring(indptr, indices, vertices):
-    """For each of ``vertices``, its neighbours and their neighbours (without itself)."""
-    out = []
-    for v in np.asarray(vertices, np.int64):
-        ring1 = indices[indptr[v]:indptr[v + 1]]
-        ring2 = np.concatenate([ring1] + [indices[indptr[u]:indptr[u + 1]] for u in ring1])
-        ring2 = np.unique(ring2)
-        out.append(ring2[ring2 != v])
-    return out
-
-
 def cube_corners(shape) -> np.ndarray:
     """Indices of the 8 corner points of a grid of ``shape`` points."""
     sx, sy, sz = (int(s) for s in shape)
@@ -216,19 +196,15 @@ def cube_corners(shape) -> np.ndarray:
     return np.array([(i * sy + j) * sz + k for i, j, k in c], dtype=np.int64)
 
 
-def cube_boundary_triangles(shape, diagonals: str = "kuhn") -> np.ndarray:
-    """The 12 boundary triangles of a box-shaped grid (section 5), oriented outward.
+def box_tetrahedra(shape, diagonals: str) -> np.ndarray:
+    """Six tetrahedra on the 8 corners of a grid box (its coarsest triangulation).
 
-    ``diagonals='kuhn'`` takes the face diagonals of the Kuhn split of the whole
-    box (all through the main diagonal's end points); ``'mirrored'`` those of the
-    mirrored split.  Either way the 12 triangles are exactly the boundary of a
-    6-tetrahedron split of the box, so :func:`box_tetrahedra` triangulates them.
+    Their boundary is the 12 initial boundary triangles of section 3.  The paper
+    does not fix the face diagonals: ``diagonals='kuhn'`` takes those of the Kuhn
+    split of the whole box (all through the main diagonal's end points),
+    ``'mirrored'`` those of the split mirrored in x (the ``boundary_diagonals``
+    option of :class:`trivsel.Options`).
     """
-    return boundary_triangles(box_tetrahedra(shape, diagonals))
-
-
-def box_tetrahedra(shape, diagonals: str = "kuhn") -> np.ndarray:
-    """Six tetrahedra on the 8 corners of a grid box (its coarsest triangulation)."""
     if diagonals not in ("kuhn", "mirrored"):
         raise ValueError(f"unknown boundary diagonals {diagonals!r}: choose 'kuhn' or 'mirrored'")
     corners = cube_corners(shape).reshape(2, 2, 2)

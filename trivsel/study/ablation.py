@@ -1,7 +1,7 @@
 """Ablation of the paper's open choices against Table 1 (section 5).
 
 A *variant* is a set of choices that differ from the defaults
-(:data:`trivsel.reduction.DEFAULTS`), named ``choice=value`` joined by ``+`` in a
+(:class:`trivsel.Options`), named ``choice=value`` joined by ``+`` in a
 fixed order, e.g. ``boundary_diagonals=mirrored+first_improving=yes``; ``default``
 changes nothing.  Every variant is run on the Table-1 functions at the paper's
 resolution and its 30 numbers (E_RMS with and without boundary, 3 fractions,
@@ -10,7 +10,7 @@ resolution and its 30 numbers (E_RMS with and without boundary, 3 fractions,
 Choices (:data:`CHOICES`; the first value is the default):
 
 * options of :func:`trivsel.reduce`: ``criterion``, ``candidates``, ``tie_order``,
-  ``own_vertices``, ``final_pass``, ``first_improving``, ``boundary_diagonals``,
+  ``vertices_in_error``, ``final_pass``, ``first_improving``, ``boundary_diagonals``,
   ``curvature``;
 * ``rounding`` of the point counts: ``half-up`` (the package: 50 % of 4913 is
   2457), ``floor`` (2456, 982, 491) or ``half-even`` (2456, 983, 491); emulated by
@@ -55,39 +55,41 @@ __all__ = [
     "best_consistent", "bracket_orders", "ablation_markdown", "write_ablation_report",
 ]
 
+#: The paper's open choices that the ablation varies (fields of :class:`trivsel.Options`), in name order.
+ABLATED = ("boundary_diagonals", "criterion", "first_improving", "curvature", "neighbourhood", "tie_order",
+           "candidates", "vertices_in_error", "final_pass")
+
+
+def _option_values(name):
+    """The values of an option, the paper method's default first."""
+    from ..methods import paper
+    from ..options import option_fields
+
+    f = {f.name: f for f in option_fields()}[name]
+    default = paper.DEFAULTS[name] if f.default is None else f.default
+    values = (False, True) if f.metadata["kind"] == "bool" else f.metadata["choices"]
+    return [default] + [v for v in values if v != default]
+
+
+def _option_doc(name):
+    from ..options import option_fields
+
+    f = {f.name: f for f in option_fields()}[name]
+    return f.metadata["doc"] + (f" ({f.metadata['paper']})" if f.metadata["paper"] else "")
+
+
 #: Every open choice and its values; the first value is the default.
-CHOICES = {
-    "boundary_diagonals": ["mirrored", "kuhn"],
-    "criterion": ["rms", "max", "sse"],
-    "first_improving": [False, True],
-    "curvature": ["direct", "local-frame"],
-    "neighbourhood": ["kuhn", "box", "two-ring"],
-    "tie_order": ["index", "reverse", "random", "centre"],
-    "candidates": ["all", "interior"],
-    "own_vertices": [True, False],
-    "final_pass": [False, True],
-    "rounding": ["half-up", "floor", "half-even"],
-}
+CHOICES = {**{k: _option_values(k) for k in ABLATED}, "rounding": ["half-up", "floor", "half-even"]}
 #: Diagnostic insertion orders (not the paper's); default "curvature".
-DIAGNOSTICS = {"ranking": ["curvature", "analytic", "random", "ascending"]}
+DIAGNOSTICS = {"ranking": _option_values("ranking")}
 #: Name order of the keys in a variant name.
 KEY_ORDER = list(CHOICES) + list(DIAGNOSTICS)
 #: Choices the ablation emulates around :func:`trivsel.reduce` (not reduce options).
-EMULATED = ("rounding", "neighbourhood")  # passed separately to reduce / emulated by counts
+EMULATED = ("rounding",)
 #: What each choice means (the Markdown summary lists these).
-CHOICE_DOCS = {
-    "boundary_diagonals": "diagonals of the 12 initial boundary triangles (section 5)",
-    "criterion": "swap criterion: sum of tetrahedral RMS (eq. 14), max (eq. 15) errors, or squared residuals",
-    "first_improving": "apply the first improving flip instead of the best one (step iii)",
-    "curvature": "curvature estimator: direct quadratic in (x, y, z), or the local frame of Hamann (1994b)",
-    "neighbourhood": "points of the curvature fit: Kuhn edge neighbours, the 26 grid neighbours, or the Kuhn 2-ring",
-    "tie_order": "order of points with equal curvature",
-    "candidates": "selectable points: all non-corner points, or interior points only",
-    "own_vertices": "a tetrahedron's own vertices count in its error (Definition 2)",
-    "final_pass": "a final swapping pass over all tetrahedra (end of section 4)",
-    "rounding": "rounding of the point counts (50 % of 4913 = 2456.5)",
-    "ranking": "diagnostic insertion order (not the paper's)",
-}
+CHOICE_DOCS = {**{k: _option_doc(k) for k in ABLATED},
+               "rounding": "rounding of the point counts (50 % of 4913 = 2456.5)",
+               "ranking": "diagnostic insertion order (not the paper's)"}
 CELLS = ("E_rms", "E_rms_interior")
 CELL_LABEL = {"E_rms": "E_RMS", "E_rms_interior": "E_RMS*"}
 SEARCH_KEYS = ("criterion", "first_improving", "curvature", "boundary_diagonals")
@@ -208,7 +210,7 @@ def run_variant(name: str, function: int, n: int = 16, fractions=(0.5, 0.2, 0.1)
     # exact counts: c / N is rounded half up back to c by trivsel.selection.count_for_fraction
     req = [c / N for c in counts]
     t0 = time.perf_counter()
-    r = reduce(data, fractions=req, neighbourhood=choices.get("neighbourhood", "kuhn"), **opts)
+    r = reduce(data, fractions=req, **opts)
     rows = []
     for s in r.snapshots:
         rows.append({"variant": name, "n": n, "function": int(function), "fraction": counts[s.n_selected],

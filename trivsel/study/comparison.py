@@ -1,4 +1,4 @@
-"""Every method side by side at matched vertex counts (issue 4, "how good is it").
+"""Every method side by side at matched vertex counts ("how good is it").
 
 One harness, :func:`compare_methods`, runs for one data set (a Table-1 function
 on the ``(n+1)^3`` grid, or any :class:`~trivsel.data.PointData`) and a list of
@@ -74,7 +74,7 @@ __all__ = [
 METHODS = ("greedy", "greedy-sse", "paper", "vtk", "random-delaunay", "curvature-delaunay")
 _VALUES_ORDER = ("data", "fit", "free")
 
-#: Columns of methods.csv: the issue's ten first (n and the matching columns beside them),
+#: Columns of methods.csv: the ten that define the comparison first (n and the matching columns beside them),
 #: then the spread over runs / seeds and the outside-hull bookkeeping.
 COLUMNS = [
     "method", "values", "function", "n", "fraction", "n_target", "n_selected",
@@ -130,7 +130,7 @@ def compare_methods(data, fractions=(0.5, 0.2, 0.1), *, n=16, methods=METHODS, v
         A subset of :data:`METHODS`.  ``curvature-delaunay`` needs ``paper``'s
         ranking and runs the curvature estimate itself if ``paper`` is left out.
     vtk_runs : int
-        VTK runs per count (median and spread; at least 5 for the issue's study).
+        VTK runs per count (median and spread; at least 5 for a fair median).
     random_seeds : int
         Seeds of the random subset (mean and spread).
     vtk_tol_points : int
@@ -256,7 +256,7 @@ def _pick(df, method, values):
 
 
 def target_check(df, fractions=None, method="greedy"):
-    """Issue 4's target, cell by cell: one row per (n, function, fraction).
+    """The comparison's target, cell by cell: one row per (n, function, fraction).
 
     ``holds_inf``: ``method`` with data values has a lower E_inf than VTK's median;
     ``holds_rms``: ``method`` with fit values has a lower E_RMS than VTK's median;
@@ -343,7 +343,7 @@ def methods_markdown(df, fractions=None, *, figures=None):
     """The Markdown summary ``results/report/methods.md``.
 
     Its first part (up to the first ``## `` heading) is the short summary the
-    README's "How good is it" section shows: the target check of issue 4 cell by
+    README's "How good is it" section shows: the target check cell by
     cell.  Then every method side by side for each function and fraction, and a
     note on how each number was obtained.
 

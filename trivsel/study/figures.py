@@ -28,8 +28,6 @@ from pathlib import Path
 import numpy as np
 
 __all__ = [
-    "save_data",
-    "load_data",
     "original_mesh",
     "load_mesh",
     "plane_cut",
@@ -37,7 +35,7 @@ __all__ = [
     "slice_figure",
     "slice_figure_3d",
     "erms_figure",
-    "fraction_label",
+    "percent_label",
 ]
 
 AXES = "xyz"
@@ -64,33 +62,9 @@ def _pyplot():
     return plt
 
 
-def fraction_label(fraction: float) -> str:
+def percent_label(fraction: float) -> str:
     """'50 %' for 0.5."""
     return f"{100 * float(fraction):g} %"
-
-
-def save_data(data, path):
-    """Save grid data (:class:`trivsel.data.PointData`) as ``.npz`` (the workflow's sample stage)."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    arrays = {"points": data.points, "values": data.values, "name": np.array(str(data.name))}
-    if data.is_grid:
-        arrays.update(ijk=data.ijk, shape=np.asarray(data.shape), origin=data.origin, spacing=data.spacing)
-    with open(path, "wb") as fh:
-        np.savez_compressed(fh, **arrays)
-    return path
-
-
-def load_data(path):
-    """Inverse of :func:`save_data`."""
-    from ..data import PointData
-
-    with np.load(path) as z:
-        kw = dict(points=z["points"], values=z["values"], name=str(z["name"]))
-        if "ijk" in z:
-            kw.update(ijk=z["ijk"], shape=tuple(int(s) for s in z["shape"]), origin=z["origin"],
-                      spacing=z["spacing"])
-    return PointData(**kw)
 
 
 def original_mesh(data):
@@ -213,7 +187,7 @@ def _panel_title(fraction, n_points, erms, erms_int):
     if fraction is None:
         head = "original data"
     else:
-        head = f"{fraction_label(fraction)} selected"
+        head = f"{percent_label(fraction)} selected"
     s = f"{head}: {n_points} points"
     if erms is not None and np.isfinite(erms):
         s += f", E$_{{RMS}}$ = {erms:.3f}"
@@ -390,13 +364,15 @@ def slice_figure_3d(data, meshes: dict, out_png, errors=None, function=None, dpi
     return out_png
 
 
-_VARIANT_COLS = ["n", "method", "criterion", "candidates", "tie_order", "boundary_diagonals",
-                 "vertices_in_error", "final_pass", "curvature", "seed"]
+def _variant_cols():
+    from ..options import option_fields
+
+    return ["n"] + [f.name for f in option_fields()]
 
 
 def _series_labels(df):
     """Label each run by the option columns that vary across the table."""
-    cols = [c for c in _VARIANT_COLS if c in df.columns and df[c].astype(str).nunique() > 1]
+    cols = [c for c in _variant_cols() if c in df.columns and df[c].astype(str).nunique() > 1]
     if "variant" in df.columns and not cols and df["variant"].nunique() > 1:
         cols = ["variant"]
     if not cols:

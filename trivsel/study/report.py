@@ -28,6 +28,7 @@ import numpy as np
 import pandas as pd
 
 from ..functions import FUNCTIONS
+from ..options import option_fields
 from . import ablation as _abl
 from .published import PUBLISHED_SOURCE, function_label, load_published
 from ..norms import face_residual_rms
@@ -53,8 +54,7 @@ TABLE1_COLUMNS = [
 ]
 
 #: Reduction options recorded per run (the workflow's sweepable keys).
-OPTION_KEYS = ["method", "criterion", "candidates", "tie_order", "boundary_diagonals",
-               "vertices_in_error", "final_pass", "curvature", "seed"]
+OPTION_KEYS = [f.name for f in option_fields()]
 
 def read_errors(paths) -> pd.DataFrame:
     """Concatenate ``errors.csv`` files (one per function) into one DataFrame."""
@@ -252,7 +252,7 @@ def _grid_counts(n: int):
     return (n + 1) ** 3, (n - 1) ** 3
 
 
-def corners_only_face_rms(function, n: int = 16, diagonals: str = "kuhn") -> float:
+def corners_only_face_rms(function, n: int, diagonals: str) -> float:
     """RMS residual on the boundary points when the faces are interpolated from the 8 corners
     alone (the 12 initial boundary triangles, ``diagonals`` as in :func:`trivsel.reduce`):
     what the face error would be if no face point were selected."""

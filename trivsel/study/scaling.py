@@ -1,4 +1,4 @@
-"""Scaling study (issue 6): wall time and peak memory against the number of points.
+"""Scaling study: wall time and peak memory against the number of points.
 
 One measurement reduces Table-1 function 4 (by default) on the ``(n+1)^3`` grid to
 10 % of its points with trivsel's ``paper`` or ``greedy`` method, or decimates the
@@ -27,7 +27,7 @@ the interpreter, the libraries and the input data (``base_mb``, about 0.2 GB);
 the cost grows with the work), :func:`scaling_figure` draws time and memory
 against points on log-log axes with the fitted slope in the legend, and
 :func:`scaling_markdown` writes the summary with the ratios trivsel/VTK and the
-targets of issue 6.
+the scaling targets.
 
 Command line (one measurement in this process; the parent side is :func:`measure`)::
 
@@ -69,7 +69,7 @@ __all__ = [
 SCALE_COLUMNS = ["method", "n", "n_points", "n_selected", "seconds", "peak_mb"]
 #: measured methods: trivsel's two selection methods and VTK's decimation
 SCALE_METHODS = ("paper", "greedy", "vtk")
-#: targets of issue 6
+#: the scaling targets
 TARGETS = {"ratio_n": 64, "ratio_max": 1.0, "big_n": 128, "big_method": "greedy", "big_seconds": 600.0,
            "big_mb": 8 * 1024.0}
 #: marks the result line of the child process
@@ -458,7 +458,7 @@ def scaling_markdown(table, *, function=4, fraction=0.1, figure=None, targets=No
     slopes = fit_slopes(table, ("seconds", "peak_mb", "extra_mb") if "base_mb" in table else
                         ("seconds", "peak_mb"))
     rat = ratios(table)
-    out = [f"# Scaling: time and memory against the number of points (issue 6)\n",
+    out = [f"# Scaling: time and memory against the number of points \n",
            f"Function {function} on the (n+1)^3 grid reduced to {100 * fraction:g} % of its points: trivsel's "
            f"`paper` and `greedy` methods (`trivsel.reduce(sample_grid({function}, n), fractions=[{fraction:g}], "
            f"method=...)`) and VTK's `vtkUnstructuredGridQuadricDecimation` to the same vertex count "
@@ -496,13 +496,13 @@ def scaling_markdown(table, *, function=4, fraction=0.1, figure=None, targets=No
             out.append(f"| {r['method']} | {r['n']} | {r['n_points']} | {_fmt(r['seconds'])} | "
                        f"{_fmt(r['ref_seconds'])} | {r['ratio_seconds']:.2f} | {r['peak_mb']:.0f} | "
                        f"{r['ref_peak_mb']:.0f} | {r['ratio_peak_mb']:.2f} |")
-    out.append("\n## Targets of issue 6\n")
+    out.append("\n## Targets\n")
     out += target_lines(table, slopes, rat, t)
     return "\n".join(out) + "\n"
 
 
 def target_lines(table, slopes, rat, t=None):
-    """Markdown bullet lines, one per target of issue 6, each MET / NOT MET / not measured."""
+    """Markdown bullet lines, one per target, each MET / NOT MET / not measured."""
     t = dict(TARGETS, **(t or {}))
     lines = []
     n0 = t["ratio_n"]
