@@ -5,6 +5,8 @@
 #   snakemake --report report.html                     HTML report after a run
 #
 # Stages (workflow/rules/): data -> reduce -> evaluate -> figures -> report.
+# The reduction options (config `reduce: options:`) are trivsel.Options fields, each a list:
+# the variants are their combinations, results/runs/n{n}/{variant}/ (docs/workflow.md).
 # Optional stage methods (config/methods.yaml): every method at matched vertex counts.
 # Optional stage ablation (config/ablation.yaml): the open choices against Table 1.
 # Optional stage scale (config/scale.yaml): time and memory against points, trivsel vs VTK.
@@ -18,6 +20,9 @@ min_version("9.0")
 configfile: "config.yaml"
 
 
+# Every section, and `reduce: options:` through a $ref to the generated
+# workflow/schemas/options.schema.json (python -m trivsel.options); common.smk then builds
+# the trivsel.Options of every variant, so a bad value stops the workflow before any job.
 validate(config, "workflow/schemas/config.schema.yaml")
 
 

@@ -216,10 +216,11 @@ def run_smk(workdir, *args, timeout=300):
 
 def test_ablation_rules_on_a_tiny_config(tmp_path):
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg.update(functions=[2, 4], n=[4], figures_3d=False, ablation=True,
-               ablation_variants=["default", "boundary_diagonals=kuhn"])
+    cfg["data"].update(functions=[2, 4], n=[4])
+    cfg["report"]["figures_3d"] = False
+    cfg["ablation"].update(activate=True, variants=["default", "boundary_diagonals=kuhn"])
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
-    primary = ("method~paper_crit~rms_cand~all_tie~index_diag~mirrored_verr~yes_final~no_curv~direct_seed~0")
+    primary = "default"
     table_md = f"results/runs/n4/{primary}/table1.md"
     r = run_smk(tmp_path, "results/report/ablation.csv", "results/report/ablation.md", table_md)
     assert r.returncode == 0, r.output[-4000:]
@@ -238,7 +239,7 @@ def test_ablation_rules_on_a_tiny_config(tmp_path):
     text = (tmp_path / table_md).read_text()
     assert "what the numbers say" in text and "ablation, E_RMS" in text
     # the paper's config does not plan the ablation; the sweep file plans one job per variant
-    (tmp_path / "off.yaml").write_text("ablation: false\n")
+    (tmp_path / "off.yaml").write_text("ablation: {activate: false}\n")
     r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--configfile", str(tmp_path / "config.yaml"),
                 str(tmp_path / "off.yaml"))
     assert r.returncode == 0 and "ablation_run" not in r.output, r.output

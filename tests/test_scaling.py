@@ -116,7 +116,8 @@ TARGETS = ["results/report/scaling.csv", "results/report/scaling.md", "results/r
 
 def test_scale_stage_tiny(tmp_path):
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg.update(functions=[4], n=[4], scale=True, scale_n=[4, 6], scale_methods=["paper", "greedy", "vtk"])
+    cfg["data"].update(functions=[4], n=[4])
+    cfg["scale"].update(activate=True, n=[4, 6], methods=["paper", "greedy", "vtk"])
     (tmp_path / "config.yaml").write_text(yaml.safe_dump(cfg))
     r = run_smk(tmp_path, "--dry-run", "--quiet", "rules")  # `all` includes the scale targets
     assert r.returncode == 0, r.output
@@ -146,10 +147,11 @@ def test_scale_config_is_valid_and_off_by_default():
 
     schema = str(REPO / "workflow" / "schemas" / "config.schema.yaml")
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    assert cfg["scale"] is False
-    cfg.update(yaml.safe_load((REPO / "config" / "scale.yaml").read_text()))
+    assert cfg["scale"]["activate"] is False
+    for key, section in yaml.safe_load((REPO / "config" / "scale.yaml").read_text()).items():
+        cfg[key] = {**cfg.get(key, {}), **section} if isinstance(section, dict) else section
     validate(cfg, schema)
-    assert cfg["scale"] is True and cfg["scale_n"] == [16, 32, 64, 128]
-    bad = dict(cfg, scale_methods=["paper", "meshlab"])
+    assert cfg["scale"]["activate"] is True and cfg["scale"]["n"] == [16, 32, 64, 128]
+    bad = dict(cfg, scale=dict(cfg["scale"], methods=["paper", "meshlab"]))
     with pytest.raises(Exception, match="meshlab"):
         validate(bad, schema)

@@ -4,6 +4,9 @@ temporary directory, through a subprocess as a user would run it."""
 
 from __future__ import annotations
 
+import copy
+import json
+import math
 import subprocess
 import sys
 from pathlib import Path
@@ -12,11 +15,12 @@ import pandas as pd
 import pytest
 import yaml
 
+from trivsel.options import Options, config_schema, option_fields, variant_tag
 from trivsel.study.report import TABLE1_COLUMNS
 
 REPO = Path(__file__).resolve().parents[1]
 SNAKEFILE = REPO / "Snakefile"
-PRIMARY = "method~paper_crit~rms_cand~all_tie~index_diag~mirrored_verr~yes_final~no_curv~direct_seed~0"
+PRIMARY = "default"  # the paper's options are the defaults of trivsel.Options
 
 
 def run_smk(workdir, *args, timeout=300):
@@ -27,11 +31,31 @@ def run_smk(workdir, *args, timeout=300):
     return r
 
 
-def write_config(workdir, **overrides):
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg.update(overrides)
-    (workdir / "config.yaml").write_text(yaml.safe_dump(cfg))
+def merged(cfg, overrides):
+    """cfg with the nested overrides merged in, as Snakemake merges --configfile files."""
+    out = copy.deepcopy(cfg)
+    for k, v in overrides.items():
+        out[k] = merged(out[k], v) if isinstance(v, dict) and isinstance(out.get(k), dict) else v
+    return out
+
+
+def paper_config():
+    return yaml.safe_load((REPO / "config.yaml").read_text())
+
+
+def write_config(workdir, overrides=None):
+    """config.yaml of the repository with the nested overrides, written to workdir."""
+    cfg = merged(paper_config(), overrides or {})
+    (workdir / "config.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     return cfg
+
+
+def planned(output, rule):
+    """How many jobs of a rule a dry run (-q rules) plans."""
+    for line in output.splitlines():
+        if line.split()[:1] == [rule] and len(line.split()) == 2 and line.split()[1].isdigit():
+            return int(line.split()[1])
+    return 0
 
 
 def test_lint_is_clean(tmp_path):
@@ -41,14 +65,20 @@ def test_lint_is_clean(tmp_path):
     assert "Congratulations" in r.stdout + r.stderr
 
 
-def test_paper_config_dry_run():
-    """The repository's config.yaml: 5 functions at n = 16, one reduce per function."""
-    r = run_smk(REPO, "--dry-run", "--quiet", "rules")
+def test_paper_config_dry_run(tmp_path):
+    """The repository's config.yaml: 5 functions at n = 16, one reduce per function, in
+    results/runs/n16/default/; the kernels in two halves, then the drivers."""
+    write_config(tmp_path)
+    r = run_smk(tmp_path, "--dry-run")
     assert r.returncode == 0, r.output
-    counts = dict(line.split()[:2] for line in r.output.splitlines()
-                  if len(line.split()) == 2 and line.split()[1].isdigit())
-    # jobs may be fewer if results/ is partly built; the plan never has more than one reduce per function
-    assert int(counts.get("reduce", 0)) <= 5
+    assert planned(r.output, "reduce") == 5 and planned(r.output, "table1") == 1, r.output
+    assert planned(r.output, "kernels") == 2 and planned(r.output, "kernels_driver") == 1, r.output
+    assert "results/runs/n16/default/f5/errors.csv" in r.output
+    blocks = {b.split("\n")[0].strip(): b for b in r.output.split("rule ")[1:]}
+    driver = blocks["kernels_driver:"]
+    assert "input: results/kernels/paper_part0.txt, results/kernels/paper_part1.txt" in driver, driver
+    assert "output: results/kernels/paper_part2.txt" in driver
+    assert "input: results/kernels/paper_part2.txt" in blocks["reduce:"]
 
 
 SCHEMA = REPO / "workflow" / "schemas" / "config.schema.yaml"
@@ -61,12 +91,24 @@ def validate(cfg):
     return cfg
 
 
+def list_lengths(cfg):
+    return sum(list_lengths(v) if isinstance(v, dict) else len(v) if isinstance(v, list) else 0
+               for v in cfg.values())
+
+
 @pytest.mark.parametrize("sweep", ["resolution.yaml", "criterion.yaml", "candidates.yaml"])
 def test_sweep_configs_are_valid(sweep):
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg.update(yaml.safe_load((REPO / "config" / sweep).read_text()))
+    paper = paper_config()
+    cfg = merged(paper, yaml.safe_load((REPO / "config" / sweep).read_text()))
     validate(cfg)
-    assert sum(len(v) for v in cfg.values() if isinstance(v, list)) > 14  # a longer list than the paper's
+    assert list_lengths(cfg) > list_lengths(validate(paper_config()))  # a longer list than the paper's
+
+
+@pytest.mark.parametrize("stage", ["methods.yaml", "ablation.yaml", "scale.yaml"])
+def test_stage_configs_are_valid(stage):
+    extra = yaml.safe_load((REPO / "config" / stage).read_text())
+    cfg = validate(merged(paper_config(), extra))
+    assert cfg[stage.removesuffix(".yaml")]["activate"] is True
 
 
 def test_sweep_dry_run(tmp_path):
@@ -75,49 +117,142 @@ def test_sweep_dry_run(tmp_path):
     sweeps = [str(REPO / "config" / s) for s in ("resolution.yaml", "criterion.yaml", "candidates.yaml")]
     r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--configfile", str(tmp_path / "config.yaml"), *sweeps)
     assert r.returncode == 0, r.output
-    assert any(line.split() == ["reduce", "60"] for line in r.output.splitlines()), r.output
-    assert any(line.split() == ["table1", "12"] for line in r.output.splitlines()), r.output
+    assert planned(r.output, "reduce") == 60 and planned(r.output, "table1") == 12, r.output
+
+
+def test_sweep_of_a_non_path_option(tmp_path):
+    """Any Options field is a sweep axis: max_flips x swap_memory gives four variant folders
+    named by variant_tag, each reduced with the flags of Options.cli_args()."""
+    write_config(tmp_path, {"data": {"functions": [1], "n": [4]}, "reduce": {"fractions": [0.5], "options": {
+        "max_flips": [0, 3], "swap_memory": ["run", "call"]}}})
+    r = run_smk(tmp_path, "--dry-run")
+    assert r.returncode == 0, r.output
+    # max_flips 0 is the paper method's default, so that combination is the default variant
+    combos = {"default": {}, "maxflips~3": {"max_flips": 3}, "mem~call": {"swap_memory": "call"},
+              "maxflips~3_mem~call": {"max_flips": 3, "swap_memory": "call"}}
+    assert planned(r.output, "reduce") == 4, r.output
+    tags = {}
+    for tag, combo in combos.items():
+        assert variant_tag(Options(**combo)) == tag
+        tags[tag] = Options(**combo).cli_args()
+        assert f"results/runs/n4/{tag}/f1/errors.csv" in r.output, r.output
+    assert tags["maxflips~3_mem~call"] == ["--max-flips", "3", "--swap-memory", "call"]
+    # the flags: run the two max_flips variants for real (n = 4, one fraction); the kernel markers
+    # are stood in for, the reductions load or compile their kernels themselves
+    kernels = tmp_path / "results" / "kernels"
+    kernels.mkdir(parents=True)
+    for part in (0, 1, 2):
+        (kernels / f"paper_part{part}.txt").write_text("stand-in\n")
+    targets = [f"results/runs/n4/{tag}/f1/errors.csv" for tag in ("default", "maxflips~3")]
+    r = run_smk(tmp_path, *targets)
+    assert r.returncode == 0, r.output[-3000:]
+    for tag in ("default", "maxflips~3"):
+        log = (tmp_path / "results" / "logs" / "reduce" / "n4" / tag / "f1.log").read_text()
+        command = log.splitlines()[0]
+        assert command.startswith("$ trivsel reduce --function 1 --n 4 --fractions 0.5 "), command
+        assert command.endswith(" ".join(["--threads", "1", *tags[tag]])), command
+        result = json.loads((tmp_path / "results" / "runs" / "n4" / tag / "f1" / "result.json").read_text())
+        assert result["options"]["max_flips"] in ((0, None) if tag == "default" else (3,)), result["options"]
 
 
 def test_schema_rejects_bad_value_naming_the_key(tmp_path):
     """What a user sees: snakemake stops before running anything and names the key."""
-    write_config(tmp_path, fractions=[0.5, 1.5])
+    write_config(tmp_path, {"reduce": {"fractions": [0.5, 1.5]}})
     r = run_smk(tmp_path, "--dry-run")
     assert r.returncode != 0
     assert "1.5 is greater than the maximum of 1" in r.output, r.output
-    assert "On instance['fractions'][1]" in r.output, r.output
+    assert "On instance['reduce']['fractions'][1]" in r.output, r.output
 
 
-@pytest.mark.parametrize("key,value,message", [
-    ("n", [1], "1 is less than the minimum of 2"),
-    ("functions", [6], "6 is greater than the maximum of 5"),
-    ("fractions", [0.0], "0.0 is less than or equal to the minimum of 0"),
-    ("criterion", ["rmse"], "'rmse' is not one of ['rms', 'max', 'sse']"),
-    ("n", 16, "16 is not of type 'array'"),
-    ("tolerance", "ten", "'ten' is not of type 'number'"),
-    ("fraction", [0.5], "Additional properties are not allowed ('fraction' was unexpected)"),
+@pytest.mark.parametrize("options,message", [
+    ({"methd": ["paper"]}, "Additional properties are not allowed ('methd' was unexpected)"),
+    ({"method": ["papr"]}, "'papr' is not one of ['paper', 'greedy']"),
 ])
-def test_schema_rejects(key, value, message):
-    cfg = yaml.safe_load((REPO / "config.yaml").read_text())
-    cfg[key] = value
+def test_bad_option_fails_at_validation(tmp_path, options, message):
+    """A misspelt option key or an unknown method stops the workflow at validation, before
+    any job (nothing is planned or run), with the schema's message naming the value."""
+    write_config(tmp_path, {"reduce": {"options": options}})
+    r = run_smk(tmp_path, "--dry-run")
+    assert r.returncode != 0
+    assert "Error validating config file." in r.output and message in r.output, r.output
+    assert "Building DAG of jobs" not in r.output and not (tmp_path / "results").exists()
+
+
+@pytest.mark.parametrize("overrides,message", [
+    # JSON Schema counts 16.0 as an integer: common.smk checks the ints itself
+    ({"data": {"n": [16.0]}}, "config data: n: 16.0 is not an integer (write e.g. 16, not 16.0)"),
+    # a value the schema lets through but trivsel.Options does not: its one-line InputError
+    ({"reduce": {"options": {"rel_tol": [math.nan]}}}, "config reduce: options: rel_tol must be finite, got nan"),
+])
+def test_bad_value_fails_when_the_workflow_loads(tmp_path, overrides, message):
+    write_config(tmp_path, overrides)
+    r = run_smk(tmp_path, "--dry-run")
+    assert r.returncode != 0
+    assert message in r.output, r.output
+    assert "Building DAG of jobs" not in r.output
+
+
+@pytest.mark.parametrize("path,value,message", [
+    (("data", "n"), [1], "1 is less than the minimum of 2"),
+    (("data", "functions"), [6], "6 is greater than the maximum of 5"),
+    (("reduce", "fractions"), [0.0], "0.0 is less than or equal to the minimum of 0"),
+    (("reduce", "options", "criterion"), ["rmse"], "'rmse' is not valid under any of the given schemas"),
+    (("reduce", "options", "tie_order"), "index", "'index' is not of type 'array'"),
+    (("reduce", "options", "max_flips"), [-1], "-1 is not valid under any of the given schemas"),
+    (("data", "n"), 16, "16 is not of type 'array'"),
+    (("report", "tolerance"), "ten", "'ten' is not of type 'number'"),
+    (("reduce", "fraction"), [0.5], "Additional properties are not allowed ('fraction' was unexpected)"),
+    (("fractions",), [0.5], "Additional properties are not allowed ('fractions' was unexpected)"),
+    (("methods", "vtk_runs"), 0, "0 is less than the minimum of 1"),
+    (("scale", "methods"), ["vtkk"], "'vtkk' is not one of ['paper', 'greedy', 'vtk']"),
+    (("scale", "fraction"), 1.0, "1.0 is greater than or equal to the maximum of 1"),
+    (("golden", "rtol"), -1, "-1 is less than the minimum of 0"),
+    (("ablation", "activate"), "yes", "'yes' is not of type 'boolean'"),
+])
+def test_schema_rejects(path, value, message):
+    cfg = paper_config()
+    node = cfg
+    for key in path[:-1]:
+        node = node[key]
+    node[path[-1]] = value
     with pytest.raises(Exception) as exc:
         validate(cfg)
     text = str(exc.value) + str(getattr(exc.value, "__cause__", ""))
     assert message in text
-    assert key in text
+    assert path[-1] in text
 
 
 def test_schema_fills_defaults():
-    cfg = validate({"functions": [1], "n": [4]})
-    assert cfg["fractions"] == [0.5, 0.2, 0.1]
-    assert cfg["criterion"] == ["rms"] and cfg["curvature"] == ["direct"]
-    assert cfg["golden_table"] == "" and cfg["figures_3d"] is True
-    paper = yaml.safe_load((REPO / "config.yaml").read_text())
-    assert validate(dict(paper)) == paper  # config.yaml spells out every key
+    cfg = validate({"data": {"functions": [1], "n": [4]}})
+    assert cfg["reduce"]["fractions"] == [0.5, 0.2, 0.1]
+    assert cfg["golden"] == {"table": "", "rtol": 1e-6, "atol": 0.0} and cfg["report"]["figures_3d"] is True
+    assert cfg["methods"]["activate"] is False and cfg["scale"]["n"] == [16, 32, 64, 128]
+    assert cfg["reduce"]["options"] == {}  # omitted options take the defaults of trivsel.Options
+    paper = paper_config()
+    assert validate(copy.deepcopy(paper)) == paper  # config.yaml spells out every section
+
+
+def test_every_option_is_in_the_schema():
+    """The generated options schema is up to date, has every Options field as a list, and is
+    the config schema's reduce: options: (by $ref); the paper's config is the default variant."""
+    fields = [f.name for f in option_fields()]
+    generated = json.loads((REPO / "workflow" / "schemas" / "options.schema.json").read_text())
+    assert generated == config_schema()
+    assert list(generated["properties"]) == fields
+    assert all(p["type"] == "array" for p in generated["properties"].values())
+    schema = yaml.safe_load(SCHEMA.read_text())
+    assert schema["properties"]["reduce"]["properties"]["options"]["$ref"] == "options.schema.json"
+    options = paper_config()["reduce"]["options"]
+    assert set(options) <= set(fields)
+    for name in fields:  # each field validates as a one-value sweep of its default
+        cfg = paper_config()
+        f = next(f for f in option_fields() if f.name == name)
+        cfg["reduce"]["options"][name] = [list(f.default) if isinstance(f.default, tuple) else f.default]
+        validate(cfg)
 
 
 def test_slurm_profile_dry_run(tmp_path):
-    write_config(tmp_path, functions=[1], n=[32])
+    write_config(tmp_path, {"data": {"functions": [1], "n": [32]}})
     r = run_smk(tmp_path, "--dry-run", "--workflow-profile", str(REPO / "workflow" / "profiles" / "slurm"))
     assert r.returncode == 0, r.output
     blocks = {b.split(":")[0].strip(): b for b in r.output.split("rule ")[1:]}
@@ -130,7 +265,7 @@ def test_slurm_profile_dry_run(tmp_path):
 def tiny_run(tmp_path_factory):
     """The whole workflow on n = 4 with two functions, for real."""
     workdir = tmp_path_factory.mktemp("wf")
-    write_config(workdir, functions=[2, 4], n=[4])
+    write_config(workdir, {"data": {"functions": [2, 4], "n": [4]}})
     r = run_smk(workdir)
     assert r.returncode == 0, r.output[-5000:]
     return workdir
@@ -153,7 +288,9 @@ def test_tiny_run_outputs(tiny_run):
     run = tiny_run / "results" / "runs" / "n4" / PRIMARY / "f4"
     assert {p.name for p in run.iterdir()} >= {"errors.csv", "result.json", "mesh_0.5.vtu", "mesh_0.2.vtu",
                                               "mesh_0.1.vtu"}
-    for rule in ("sample", "reduce", "table1", "slice_figure", "slice_figure_3d", "publish"):
+    assert {p.name for p in (tiny_run / "results" / "kernels").iterdir()} == {
+        "paper_part0.txt", "paper_part1.txt", "paper_part2.txt"}
+    for rule in ("kernels", "sample", "reduce", "table1", "slice_figure", "slice_figure_3d", "publish"):
         assert (tiny_run / "results" / "logs" / rule).exists() or \
             (tiny_run / "results" / "logs" / f"{rule}.log").exists()
         assert (tiny_run / "results" / "benchmarks" / rule).exists() or \
@@ -175,14 +312,14 @@ def test_golden_check_rule(tiny_run, tmp_path):
     golden = tmp_path / "golden.csv"
     golden.write_bytes(produced.read_bytes())
     target = "results/report/golden_check.txt"
-    r = run_smk(tiny_run, target, "--config", f"golden_table={golden}")
+    r = run_smk(tiny_run, target, "--config", f"golden={{table: {golden}}}")
     assert r.returncode == 0, r.output
     assert "OK, all cells within tolerance" in (tiny_run / "results" / "report" / "golden_check.txt").read_text()
     df = pd.read_csv(golden)
     df.loc[(df.function == 4) & (df.fraction == 0.2), "E_rms_interior"] *= 1.01
     df.to_csv(golden, index=False)
     r = run_smk(tiny_run, target, "--forcerun", "golden_check", "--show-failed-logs",
-                "--config", f"golden_table={golden}")
+                "--config", f"golden={{table: {golden}}}")
     assert r.returncode != 0
     assert "function=4, fraction=0.2" in r.output and "E_rms_interior" in r.output, r.output
 

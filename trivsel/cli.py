@@ -102,20 +102,20 @@ def _progress_line(done, total, e_rms, e_inf, seconds):
 def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
-    from .io import load, write_outputs
+    from .io import check_output_dir, load, write_outputs
+    from .options import from_namespace
     from .reduction import reduce
 
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
+    options = from_namespace(a)
+    check_output_dir(a.out, [] if a.input is None else [a.input])  # before any work
     if a.function is not None:
         if a.array is not None:
             raise InputError("--array applies to input files, not to --function")
         data = sample_grid(resolve_function(a.function), a.n)
     else:
         data = load(a.input, a.array)
-    from .options import from_namespace
-
-    options = from_namespace(a)
     check = None
     if a.check:
         from .mesh import check_mesh
@@ -124,7 +124,7 @@ def _cmd_reduce(a):
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
                     options=options, threads=a.threads, check=check, progress=_progress_line if show else None)
-    out = write_outputs(result, a.out, extra={"command": sys.argv})
+    out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=[] if a.input is None else [a.input])
     df = result.errors_frame()
     print(df.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
@@ -160,9 +160,20 @@ def _cmd_compare(a):
     return 0
 
 
+def _terminate(signum, frame):
+    raise KeyboardInterrupt
+
+
 def main(argv=None):
+    """Run the command line; returns the exit status (2: bad input, 130: interrupted)."""
+    import signal
+    import threading
+
     parser = build_parser()
     a = parser.parse_args(argv)
+    main_thread = threading.current_thread() is threading.main_thread()
+    if main_thread:  # SIGTERM like Ctrl-C: the outputs stay as they were, the temporaries go
+        previous = signal.signal(signal.SIGTERM, _terminate)
     try:
         if a.command == "reduce":
             return _cmd_reduce(a)
@@ -173,6 +184,12 @@ def main(argv=None):
     except InputError as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
+        return 130
+    finally:
+        if main_thread:
+            signal.signal(signal.SIGTERM, previous)
     return 2  # pragma: no cover
 
 

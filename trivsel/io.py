@@ -10,9 +10,10 @@ Input formats (:func:`load`):
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
 * ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``).
 
-Outputs (:func:`write_outputs`) go first to a temporary folder beside the target
+Outputs (:func:`write_outputs`) go first to a temporary folder inside the target
 and are moved into place only when all of them are complete, so a failure never
-leaves partial or corrupt files.
+leaves partial or corrupt files; a manifest lists what trivsel wrote, so a new run
+replaces exactly the files of the previous one and never touches an input.
 """
 
 from __future__ import annotations
@@ -28,7 +29,8 @@ import numpy as np
 from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError
 
-__all__ = ["READERS", "load", "save_npz", "write_outputs", "snapshot_to_pyvista", "fraction_label"]
+__all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_pyvista",
+           "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -190,19 +192,69 @@ def _jsonable(obj):
     return obj
 
 
-def write_outputs(result, out_dir, extra: dict | None = None):
+#: The file in an output folder that lists what trivsel wrote there (and may replace).
+MANIFEST = ".trivsel-manifest.json"
+_TMP_PREFIX = ".trivsel-tmp-"
+
+
+def check_output_dir(out_dir, inputs=()):
+    """Check an output folder before any work: it is not a file, it can be created and
+    written, and it does not contain an input file (whose name a result could take).
+
+    Raises :class:`~trivsel.exceptions.InputError` with one line naming the problem.
+    Returns the folder as a resolved :class:`~pathlib.Path`.
+    """
+    out = Path(out_dir).expanduser()
+    if out.exists() and not out.is_dir():
+        raise InputError(f"--out {str(out)!r} is an existing file, not a folder")
+    resolved = out.resolve()
+    for inp in inputs:
+        ip = Path(inp).expanduser().resolve()
+        if ip == resolved or resolved in ip.parents:
+            raise InputError(f"input file {str(inp)!r} is inside the output folder {str(out)!r}: "
+                             "choose another --out (trivsel never writes over its input)")
+    probe = resolved
+    while not probe.exists():
+        probe = probe.parent
+    if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
+        raise InputError(f"cannot write the output folder {str(out)!r}: {str(probe)!r} is not writable")
+    return resolved
+
+
+def _remove_stale_temporaries(out):
+    """Temporary folders of an earlier run that was killed while writing."""
+    for p in out.glob(_TMP_PREFIX + "*"):
+        if p.is_dir():
+            shutil.rmtree(p, ignore_errors=True)
+
+
+def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
     """Write ``errors.csv``, ``mesh_<fraction>.vtu`` and ``result.json`` into ``out_dir``.
 
-    All files are written to a temporary folder first and moved into ``out_dir``
-    only when every one is complete.
+    The output contract:
+
+    * ``out_dir`` is checked first (:func:`check_output_dir`): an input file inside
+      it is refused, so an input is never overwritten;
+    * every file is written into a temporary folder *inside* ``out_dir`` (the same
+      file system, so the final moves are atomic renames) and moved into place only
+      when all of them are complete;
+    * files that an earlier trivsel run wrote there (listed in its manifest,
+      :data:`MANIFEST`) and that this run does not produce are removed, so the
+      folder never mixes two runs; other files in the folder are left alone;
+    * the temporary folder is removed on any failure or interruption, and leftovers
+      of a killed run are removed by the next one.
     """
-    out = Path(out_dir)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=".trivsel-", dir=out.parent))
+    out = check_output_dir(out_dir, inputs)
+    out.mkdir(parents=True, exist_ok=True)
+    _remove_stale_temporaries(out)
+    tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=out))
     try:
+        names = ["errors.csv"]
         result.errors_frame().to_csv(tmp / "errors.csv", index=False)
         for s in result.snapshots:
-            snapshot_to_pyvista(result, s).save(str(tmp / f"mesh_{fraction_label(s.fraction)}.vtu"))
+            name = f"mesh_{fraction_label(s.fraction)}.vtu"
+            snapshot_to_pyvista(result, s).save(str(tmp / name))
+            names.append(name)
         info = {
             "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
                      "shape": result.data.shape, "origin": result.data.origin, "spacing": result.data.spacing,
@@ -218,9 +270,24 @@ def write_outputs(result, out_dir, extra: dict | None = None):
         }
         with open(tmp / "result.json", "w") as fh:
             json.dump(_jsonable(info), fh, indent=1)
-        out.mkdir(parents=True, exist_ok=True)
-        for f in sorted(tmp.iterdir()):
-            os.replace(f, out / f.name)
+        names.append("result.json")
+        with open(tmp / MANIFEST, "w") as fh:
+            json.dump({"files": names}, fh)
+        previous = _previous_files(out)
+        for name in names:
+            os.replace(tmp / name, out / name)
+        for name in sorted(previous - set(names)):
+            (out / name).unlink(missing_ok=True)
+        os.replace(tmp / MANIFEST, out / MANIFEST)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _previous_files(out):
+    """The files an earlier trivsel run listed in the folder's manifest (plain names only)."""
+    try:
+        files = json.loads((out / MANIFEST).read_text())["files"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return set()
+    return {f for f in files if isinstance(f, str) and f == Path(f).name and not f.startswith(".")}

@@ -1,5 +1,5 @@
-# Optional stage, ablation (issue 5): every open choice of the paper, alone and in
-# combinations, against Table 1.  Off by default (config `ablation: false`, so the paper
+# Optional stage, ablation: every open choice of the paper, alone and in
+# combinations, against Table 1.  Off by default (`ablation: activate: false`, so the paper
 # run stays fast); on with   snakemake -c all --configfile config/ablation.yaml
 # One job per variant runs all functions at the primary n (trivsel.study.ablation.run_variant);
 # ablation_report stacks them into results/report/ablation.csv and ablation.md.
@@ -8,12 +8,15 @@
 import trivsel.study.ablation as ablation_pkg
 
 ABLATION_VARIANTS = (
-    ablation_pkg.variant_names(config["ablation_variants"]) if config["ablation"] else []
+    ablation_pkg.variant_names(config["ablation"]["variants"])
+    if config["ablation"]["activate"]
+    else []
 )
 ABLATION_TARGETS = (
-    ["results/report/ablation.csv", "results/report/ablation.md"] if config["ablation"] else []
+    ["results/report/ablation.csv", "results/report/ablation.md"]
+    if config["ablation"]["activate"]
+    else []
 )
-ABLATION_CODE = source_hash("ablation.py") + CODE_CORE
 
 
 rule ablation_run:
@@ -22,7 +25,7 @@ rule ablation_run:
     params:
         functions=FUNCTIONS,
         fractions=FRACTIONS,
-        code=ABLATION_CODE,
+        code=CODE_ABLATION,
     wildcard_constraints:
         ablation_variant="|".join(re.escape(v) for v in ABLATION_VARIANTS) or "default",
     log:
@@ -58,8 +61,8 @@ rule ablation_report:
         summary="results/report/ablation_summary.csv",
         closest="results/report/ablation_closest.csv",
     params:
-        tolerance=config["tolerance"],
-        code=source_hash("ablation.py", "report.py"),
+        tolerance=config["report"]["tolerance"],
+        code=CODE_ABLATION_REPORT,
     log:
         "results/logs/ablation_report.log",
     benchmark:

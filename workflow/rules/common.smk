@@ -1,62 +1,95 @@
-# Helpers shared by the rules: the sweep (variants), target lists, resources.
+# Helpers shared by the rules: the checked configuration, the sweep (variants), target
+# lists, code hashes, resources.
 # No rules here (snakemake --lint: do not mix functions and rules in one file).
 
+import dataclasses
 import hashlib
 import importlib.util
 import itertools
+import numbers
 import re
 from pathlib import Path
 
-#: Reduction options in path order; each config key is a list (a sweep axis).
-OPTION_KEYS = [
-    "method",
-    "criterion",
-    "candidates",
-    "tie_order",
-    "boundary_diagonals",
-    "vertices_in_error",
-    "final_pass",
-    "curvature",
-    "seed",
-]
-#: Short names used in the variant directory name.
-OPTION_SHORT = {
-    "method": "method",
-    "criterion": "crit",
-    "candidates": "cand",
-    "tie_order": "tie",
-    "boundary_diagonals": "diag",
-    "vertices_in_error": "verr",
-    "final_pass": "final",
-    "curvature": "curv",
-    "seed": "seed",
+from snakemake.exceptions import WorkflowError
+
+from trivsel.exceptions import InputError
+from trivsel.methods import get_method
+from trivsel.options import Options, config_schema, option_fields, variant_tag
+
+
+# --- checks the schema cannot make.  JSON Schema counts 16.0 as an integer, so the integer
+# keys are checked here for Python ints (a YAML "16.0" is a float and would become a
+# folder n16.0).
+def _require_ints(key, values):
+    values = values if isinstance(values, list) else [values]
+    for v in values:
+        if isinstance(v, bool) or not isinstance(v, numbers.Integral):
+            raise WorkflowError(f"config {key}: {v!r} is not an integer (write e.g. 16, not 16.0)")
+
+
+for _key, _values in [
+    ("data: functions", config["data"]["functions"]),
+    ("data: n", config["data"]["n"]),
+    ("methods: vtk_runs", config["methods"]["vtk_runs"]),
+    ("methods: random_seeds", config["methods"]["random_seeds"]),
+    ("scale: n", config["scale"]["n"]),
+    ("scale: function", config["scale"]["function"]),
+]:
+    _require_ints(_key, _values)
+
+
+# --- the reduction options: `reduce: options:` is validated by the Snakefile against the
+# generated workflow/schemas/options.schema.json (a $ref of config.schema.yaml).  The schema's
+# defaults are not applied through that $ref (the referenced file declares its own $schema,
+# so jsonschema validates it with a plain validator), so the omitted keys are filled in here
+# from trivsel.options.config_schema() (every key then shows in the report's captions).
+_OPTION_DEFAULTS = {name: prop["default"] for name, prop in config_schema()["properties"].items()}
+config["reduce"]["options"] = {
+    name: list(config["reduce"]["options"].get(name, default)) for name, default in _OPTION_DEFAULTS.items()
 }
+_FIELD_DEFAULTS = {f.name: f.default for f in option_fields()}
 
 
-def _tag_value(v):
-    if isinstance(v, bool):
-        return "yes" if v else "no"
-    return str(v).replace("_", "-")
+def canonical_options(options):
+    """The same options with a value that equals the method's default written as the
+    default (None), so that e.g. `criterion: [rms]` under the paper method is the
+    `default` variant and not a second folder with the same reduction."""
+    method_defaults = get_method(options.method).DEFAULTS
+    same = {
+        k: None
+        for k, v in method_defaults.items()
+        if _FIELD_DEFAULTS[k] is None and getattr(options, k) == v
+    }
+    return dataclasses.replace(options, **same)
 
 
-def variant_tag(options):
-    """Directory name of one option combination, e.g. method~paper_crit~rms_..."""
-    return "_".join(f"{OPTION_SHORT[k]}~{_tag_value(options[k])}" for k in OPTION_KEYS)
+def build_variants(option_lists):
+    """tag -> trivsel.Options for every combination of the option lists (config order).
+
+    Built when the workflow loads, so a bad value stops it before any job runs with
+    the one-line message of trivsel.InputError."""
+    names = list(option_lists)
+    variants = {}
+    for combo in itertools.product(*(option_lists[k] for k in names)):
+        try:
+            options = canonical_options(Options(**dict(zip(names, combo))))
+        except InputError as exc:
+            raise WorkflowError(f"config reduce: options: {exc}") from None
+        variants.setdefault(variant_tag(options), options)
+    return variants
 
 
-#: tag -> options dict, for every combination of the option lists (config order).
-VARIANTS = {}
-for _combo in itertools.product(*(config[k] for k in OPTION_KEYS)):
-    _opts = dict(zip(OPTION_KEYS, _combo))
-    VARIANTS[variant_tag(_opts)] = _opts
-
+#: tag -> trivsel.Options of every variant of the sweep.
+VARIANTS = build_variants(config["reduce"]["options"])
 #: The primary run (first value of every list), shown in results/report/.
-PRIMARY_VARIANT = variant_tag({k: config[k][0] for k in OPTION_KEYS})
-PRIMARY_N = config["n"][0]
-FUNCTIONS = list(config["functions"])
-NS = list(config["n"])
-FRACTIONS = sorted(set(float(f) for f in config["fractions"]), reverse=True)
+PRIMARY_VARIANT = next(iter(VARIANTS))
+PRIMARY_N = config["data"]["n"][0]
+FUNCTIONS = list(config["data"]["functions"])
+NS = list(config["data"]["n"])
+FRACTIONS = sorted(set(float(f) for f in config["reduce"]["fractions"]), reverse=True)
 FRACTION_LABELS = [f"{f:g}" for f in FRACTIONS]
+#: Methods of the variants: each gets its kernels compiled once.
+KERNEL_METHODS = sorted({o.method for o in VARIANTS.values()})
 
 
 wildcard_constraints:
@@ -66,56 +99,65 @@ wildcard_constraints:
     fraction="[0-9.e-]+",
 
 
+def variant_options(variant):
+    """The options of a variant with every method default filled in (for the tables)."""
+    return VARIANTS[variant].resolve().to_dict()
+
+
+def variant_columns(n, variant):
+    """The columns errors_all.csv gets for one run: n, the variant and its options, except
+    `values`, which errors.csv has already (one row per fraction and kind of values)."""
+    options = {k: v for k, v in variant_options(variant).items() if k != "values"}
+    return {"n": n, "variant": variant, **options}
+
+
+def variant_cli_args(wildcards):
+    """The `trivsel reduce` flags of the run's variant."""
+    return VARIANTS[wildcards.variant].cli_args()
+
+
 # --- code versions: Snakemake reruns a job when its params change, so each rule gets
-# a hash of the trivsel modules it runs.  Editing the package then reruns exactly
-# the affected jobs (the package is not a script, so Snakemake would not see it).
+# a hash of the trivsel code it runs.  Editing the package then reruns exactly the
+# affected jobs (the package is not a script, so Snakemake would not see it).
+# CODE_CORE covers the library (trivsel/**/*.py, subpackages such as trivsel/mesh/
+# included) but not the studies (trivsel/study/), which the report, figure, methods,
+# ablation and scale rules hash by module.
 _PKG_DIR = Path(importlib.util.find_spec("trivsel").origin).parent
-_NOT_CORE = {"figures.py", "report.py", "compare.py", "methods.py", "ablation.py"}
 
 
 def source_hash(*names):
-    """Short hash of the named trivsel modules; no names: the core (all but figures/report/compare)."""
+    """Short hash of the named files under trivsel/ (e.g. "study/report.py"); no names:
+    the library, every trivsel/**/*.py outside trivsel/study/."""
     if names:
         files = [_PKG_DIR / name for name in names]
     else:
-        files = sorted(p for p in _PKG_DIR.glob("*.py") if p.name not in _NOT_CORE)
+        files = sorted(
+            p for p in _PKG_DIR.rglob("*.py") if "study" not in p.relative_to(_PKG_DIR).parts[:-1]
+        )
     h = hashlib.sha256()
     for p in files:
-        h.update(p.name.encode())
+        h.update(p.relative_to(_PKG_DIR).as_posix().encode())
         h.update(p.read_bytes())
     return h.hexdigest()[:16]
 
 
 CODE_CORE = source_hash()
-CODE_DATA = source_hash("data.py")
-CODE_REPORT = source_hash("report.py", "data.py")
-CODE_FIGURES = source_hash("figures.py", "report.py", "data.py", "triangulation.py")
-CODE_METHODS = CODE_CORE + source_hash("methods.py")
-CODE_METHODS_REPORT = source_hash("methods.py", "figures.py", "data.py")
+CODE_DATA = source_hash("data.py", "functions.py", "io.py")
+_PUBLISHED = ("study/published.py", "study/table1_published.csv")
+CODE_REPORT = source_hash("study/report.py", "study/ablation.py", *_PUBLISHED)
+CODE_FIGURES = source_hash("study/figures.py", "io.py", *_PUBLISHED)
+CODE_METHODS = CODE_CORE + source_hash("study/comparison.py", "study/baselines.py")
+CODE_METHODS_REPORT = source_hash("study/comparison.py", "study/figures.py")
+CODE_ABLATION = CODE_CORE + source_hash("study/ablation.py", *_PUBLISHED)
+CODE_ABLATION_REPORT = source_hash("study/ablation.py", "study/report.py", *_PUBLISHED)
+CODE_SCALE = CODE_CORE + source_hash("study/scaling.py", "study/baselines.py")
+CODE_SCALE_REPORT = source_hash("study/scaling.py", "study/figures.py")
+CODE_GOLDEN = source_hash("regression.py")
 
 
-def reduce_cli_args(options):
-    """The trivsel reduce flags of one option combination."""
-    args = [
-        "--method", str(options["method"]),
-        "--criterion", str(options["criterion"]),
-        "--candidates", str(options["candidates"]),
-        "--tie-order", str(options["tie_order"]),
-        "--boundary-diagonals", str(options["boundary_diagonals"]),
-        "--curvature", str(options["curvature"]),
-        "--seed", str(options["seed"]),
-    ]
-    if not options["vertices_in_error"]:
-        args.append("--no-vertices-in-error")
-    if options["final_pass"]:
-        args.append("--final-pass")
-    return args
-
-
-def kernel_markers(wildcards):
-    """The two halves of `trivsel compile` for the method of the run's variant."""
-    method = VARIANTS[wildcards.variant]["method"]
-    return [f"results/kernels/{method}_part{part}.txt" for part in (0, 1)]
+def kernel_driver_marker(wildcards):
+    """`trivsel compile --part 2` (the drivers) of the method of the run's variant."""
+    return f"results/kernels/{VARIANTS[wildcards.variant].method}_part2.txt"
 
 
 def run_dir(n, variant, function):
@@ -136,7 +178,7 @@ def all_runs():
 
 
 def figure_names():
-    names = ["slices"] + (["slices3d"] if config["figures_3d"] else [])
+    names = ["slices"] + (["slices3d"] if config["report"]["figures_3d"] else [])
     return [f"{name}_f{f}.png" for name in names for f in FUNCTIONS]
 
 
@@ -152,9 +194,9 @@ def all_targets():
         for v in VARIANTS:
             targets.append(f"results/runs/n{n}/{v}/table1.csv")
             targets += [f"results/runs/n{n}/{v}/figures/{name}" for name in figure_names()]
-    if config["golden_table"]:
+    if config["golden"]["table"]:
         targets.append("results/report/golden_check.txt")
-    if config["methods"]:
+    if config["methods"]["activate"]:
         targets += methods_targets()
     return targets
 
@@ -179,9 +221,11 @@ def figure_mem_mb(wildcards, attempt):
     return int(1500 + 0.02 * _points(wildcards)) * attempt
 
 
-# --- stage "methods" (workflow/rules/methods.smk; on with `methods: true`): every method at
-# matched counts, at the Table-1 fractions and the sweep methods_fractions.
-METHODS_FRACTIONS = sorted(set(FRACTIONS) | set(float(f) for f in config["methods_fractions"]), reverse=True)
+# --- stage "methods" (workflow/rules/methods.smk; on with `methods: activate: true`): every
+# method at matched counts, at the Table-1 fractions and the sweep `methods: fractions`.
+METHODS_FRACTIONS = sorted(
+    set(FRACTIONS) | set(float(f) for f in config["methods"]["fractions"]), reverse=True
+)
 
 
 def methods_targets():

@@ -7,9 +7,11 @@ rule table1:
     input:
         errors=errors_csvs,
         results=result_jsons,
-        # with `ablation: true`, each deviating cell of table1.md names the closest variant
+        # with `ablation: activate: true`, each deviating cell of table1.md names the closest variant
         ablation=lambda wildcards: (
-            ["results/report/ablation.csv"] if config["ablation"] and int(wildcards.n) == PRIMARY_N else []
+            ["results/report/ablation.csv"]
+            if config["ablation"]["activate"] and int(wildcards.n) == PRIMARY_N
+            else []
         ),
     output:
         csv=report(
@@ -27,8 +29,8 @@ rule table1:
             labels={"n": "{n}", "variant": "{variant}", "table": "Table 1 (Markdown)"},
         ),
     params:
-        tolerance=config["tolerance"],
-        options=lambda wildcards: {"n": int(wildcards.n), **VARIANTS[wildcards.variant]},
+        tolerance=config["report"]["tolerance"],
+        options=lambda wildcards: {"n": int(wildcards.n), **variant_options(wildcards.variant)},
         code=CODE_REPORT,
     log:
         "results/logs/table1/n{n}/{variant}.log",
@@ -55,7 +57,7 @@ rule collect_errors:
             labels={"table": "all runs (csv)"},
         ),
     params:
-        runs=[{"n": n, "variant": v, **VARIANTS[v]} for n, v, f in all_runs()],
+        runs=[variant_columns(n, v) for n, v, f in all_runs()],
         code=CODE_REPORT,
     log:
         "results/logs/collect_errors.log",

@@ -1,9 +1,9 @@
-# Stage "methods" (issue 4, "how good is it"; on with `methods: true`, e.g.
+# Stage "methods" ("how good is it"; on with `methods: activate: true`, e.g.
 #   snakemake -c all --configfile config/methods.yaml):
 # every method at matched vertex counts - trivsel's greedy and paper methods with data and
 # fitted vertex values, VTK's tetrahedral quadric decimation (median of several runs), a random
 # subset + Delaunay (mean of several seeds) and the paper's curvature order + plain Delaunay -
-# for each function and n, over the Table-1 fractions and the sweep `methods_fractions`.
+# for each function and n, over the Table-1 fractions and the sweep `methods: fractions`.
 # The work is trivsel.study.comparison.compare_methods; these rules only call it and collect.
 
 
@@ -12,8 +12,8 @@ rule methods_run:
         "results/methods/n{n}/f{function}.csv",
     params:
         fractions=METHODS_FRACTIONS,
-        vtk_runs=config["methods_vtk_runs"],
-        random_seeds=config["methods_random_seeds"],
+        vtk_runs=config["methods"]["vtk_runs"],
+        random_seeds=config["methods"]["random_seeds"],
         code=CODE_METHODS,
     log:
         "results/logs/methods_run/n{n}/f{function}.log",

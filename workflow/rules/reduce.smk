@@ -1,23 +1,54 @@
 # Stage 2, reduce: one `trivsel reduce` per (function, n, option variant), run to the
 # largest fraction; the smaller fractions are snapshots written on the way
 # (errors.csv has one row per fraction, mesh_<fraction>.vtu one mesh per fraction).
+# Before them, for each method of the sweep: kernels (parts 0 and 1, side by side), then
+# kernels_driver (part 2); the reductions wait for the driver's marker.
+# The variant's flags are trivsel.Options.cli_args() (workflow/rules/common.smk).
 
 
 rule kernels:
     """Compile the numba kernels of one method into numba's cache in two halves, side by
-    side, before the reductions fan out (trivsel compile --part; about 12 s instead of 21 s
-    on a fresh machine, a no-op load once they are cached)."""
+    side, before the reductions fan out (trivsel compile --part 0: swapping, --part 1:
+    insertion; about 12 s instead of 21 s on a fresh machine, a no-op load once they are
+    cached)."""
     output:
         "results/kernels/{method}_part{part}.txt",
     params:
+        part=lambda wildcards: int(wildcards.part),
         code=CODE_CORE,
     log:
         "results/logs/kernels/{method}_part{part}.log",
     benchmark:
         "results/benchmarks/kernels/{method}_part{part}.tsv"
     wildcard_constraints:
-        method="paper|greedy",
+        method="|".join(KERNEL_METHODS),
         part="[01]",
+    threads: 1
+    resources:
+        mem_mb=1000,
+        runtime=10,
+    conda:
+        "../envs/trivsel.yaml"
+    script:
+        "../scripts/kernels.py"
+
+
+rule kernels_driver:
+    """Compile the reduction drivers of one method (trivsel compile --part 2), which call
+    the kernels of both halves: after both are in the cache."""
+    input:
+        expand("results/kernels/{{method}}_part{part}.txt", part=[0, 1]),
+    output:
+        "results/kernels/{method}_part2.txt",
+    params:
+        part=2,
+        code=CODE_CORE,
+    log:
+        "results/logs/kernels/{method}_part2.log",
+    benchmark:
+        "results/benchmarks/kernels/{method}_part2.tsv"
+    wildcard_constraints:
+        method="|".join(KERNEL_METHODS),
     threads: 1
     resources:
         mem_mb=1000,
@@ -30,7 +61,7 @@ rule kernels:
 
 rule reduce:
     input:
-        kernels=kernel_markers,
+        kernels=kernel_driver_marker,
     output:
         errors="results/runs/n{n}/{variant}/f{function}/errors.csv",
         result="results/runs/n{n}/{variant}/f{function}/result.json",
@@ -40,7 +71,7 @@ rule reduce:
         ),
     params:
         fractions=FRACTIONS,
-        args=lambda wildcards: reduce_cli_args(VARIANTS[wildcards.variant]),
+        args=variant_cli_args,
         code=CODE_CORE,
     log:
         "results/logs/reduce/n{n}/{variant}/f{function}.log",

@@ -1,6 +1,6 @@
-# Optional stage, scale (issue 6): wall time and peak memory against the number of points,
+# Optional stage, scale: wall time and peak memory against the number of points,
 # trivsel's paper and greedy methods beside VTK's tetrahedral quadric decimation.
-# Off by default (config `scale: false`); on with
+# Off by default (`scale: activate: false`); on with
 #   snakemake -c 1 --configfile config/scale.yaml
 # (-c 1: one measurement at a time, so jobs do not compete for the cores.)
 # One job per (method, n) runs trivsel.study.scaling.measure: a fresh Python process that warms up
@@ -10,28 +10,26 @@
 
 import trivsel.study.scaling as scaling_pkg
 
-SCALE_NS = list(config["scale_n"])
-SCALE_METHODS = list(config["scale_methods"])
+SCALE_NS = list(config["scale"]["n"])
+SCALE_METHODS = list(config["scale"]["methods"])
 SCALE_TARGETS = (
     [
         "results/report/scaling.csv",
         "results/report/scaling.md",
         "results/report/figures/scaling.png",
     ]
-    if config["scale"]
+    if config["scale"]["activate"]
     else []
 )
-# trivsel.study.scaling runs trivsel (the core) or VTK via trivsel.study.baselines
-SCALE_CODE = source_hash("scaling.py", "baselines.py") + CODE_CORE
 
 
 rule scale_run:
     output:
         "results/scale/{scale_method}/n{n}.json",
     params:
-        function=config["scale_function"],
-        fraction=config["scale_fraction"],
-        code=SCALE_CODE,
+        function=config["scale"]["function"],
+        fraction=config["scale"]["fraction"],
+        code=CODE_SCALE,
     wildcard_constraints:
         scale_method="paper|greedy|vtk",
     log:
@@ -65,10 +63,10 @@ rule scale_table:
             labels={"table": "fitted slopes, ratios trivsel/VTK, targets (Markdown)"},
         ),
     params:
-        function=config["scale_function"],
-        fraction=config["scale_fraction"],
+        function=config["scale"]["function"],
+        fraction=config["scale"]["fraction"],
         figure="figures/scaling.png",
-        code=source_hash("scaling.py"),
+        code=CODE_SCALE_REPORT,
     log:
         "results/logs/scale_table.log",
     benchmark:
@@ -94,7 +92,7 @@ rule scale_figure:
             labels={"figure": "time and memory against points (log-log)"},
         ),
     params:
-        code=source_hash("scaling.py", "figures.py"),
+        code=CODE_SCALE_REPORT,
     log:
         "results/logs/scale_figure.log",
     benchmark:

@@ -1,5 +1,5 @@
 """Rule methods_table: all methods' rows stacked (methods.csv) and the Markdown summary
-with the issue-4 target check (methods.md)."""
+with the target check (methods.md)."""
 
 import sys
 

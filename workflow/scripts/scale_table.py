@@ -1,5 +1,5 @@
 """Rule scale_table: the measurements stacked (scaling.csv) and the summary with fitted slopes,
-ratios trivsel/VTK and the issue-6 targets (scaling.md)."""
+ratios trivsel/VTK and the targets (scaling.md)."""
 
 import json
 import sys

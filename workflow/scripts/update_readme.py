@@ -1,11 +1,12 @@
 """Rule readme: put the produced Table 1 and Fig. 4 where the README shows them.
 
 Copies results/report/table1.md and the function-2 slice figure to docs/, and
-replaces the text between the README's table1 markers with Table 1 (the main
-table and the summary line of table1.md).  With the methods comparison on
-(input ``methods_md``) it also replaces the text between the methods markers
-with the summary part of results/report/methods.md.  A block whose markers are
-missing is left alone.
+replaces the text between the table1 markers of README.md with Table 1 (the
+main table and the summary line of table1.md).  With the methods comparison on
+(input ``methods_md``) it also replaces the text between the methods markers of
+docs/methods.md with the summary part of results/report/methods.md (the files
+are the rule's ``docs`` parameter).  A block whose markers are missing is left
+alone.
 """
 
 import re
@@ -33,7 +34,7 @@ def summary(md_path):
 def replace_block(text, name, body):
     begin, end = MARKERS[name]
     if begin not in text or end not in text:
-        print(f"README has no markers {begin!r} ... {end!r}: {name} block left unchanged")
+        print(f"no markers {begin!r} ... {end!r}: {name} block left unchanged")
         return text
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
@@ -50,13 +51,13 @@ methods_md = list(sm.input.methods_md) if "methods_md" in sm.input.keys() else [
 if methods_md:
     blocks["methods"] = summary(methods_md[0])
 
-readme = Path(sm.params.readme)
-if not readme.is_file():
-    print(f"{readme} not found: nothing to update")
-else:
-    text = original = readme.read_text()
-    for name, body in blocks.items():
-        text = replace_block(text, name, body)
-    if text != original:
-        readme.write_text(text)
-        print(f"wrote {readme}")
+for name, body in blocks.items():
+    doc = Path(sm.params.docs[name])
+    if not doc.is_file():
+        print(f"{doc} not found: {name} block not written")
+        continue
+    text = doc.read_text()
+    new = replace_block(text, name, body)
+    if new != text:
+        doc.write_text(new)
+        print(f"wrote {doc}")

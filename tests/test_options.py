@@ -1,0 +1,181 @@
+"""The Options registry, the method registry and the library/study split: one definition of
+every option feeds the API, the CLI, the workflow's schema and the docs."""
+
+from __future__ import annotations
+
+import ast
+import inspect
+import json
+import subprocess
+import sys
+from dataclasses import fields
+from pathlib import Path
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import trivsel
+from trivsel.cli import build_parser
+from trivsel.methods import METHODS, get_method
+from trivsel.options import Options, config_schema, option_fields, options_markdown, variant_tag
+
+REPO = Path(__file__).resolve().parents[1]
+LIBRARY = REPO / "trivsel"
+
+
+def _value_strategy(f):
+    meta = f.metadata
+    if meta["kind"] == "choice":
+        choices = list(METHODS) if f.name == "method" else list(meta["choices"])
+        base = st.sampled_from(choices)
+        if meta["sequence"]:
+            return st.lists(base, min_size=1, max_size=len(choices), unique=True).map(tuple)
+        return base
+    if meta["kind"] == "bool":
+        return st.booleans()
+    if meta["kind"] == "int":
+        return st.integers(min_value=int(meta["minimum"]), max_value=10**6)
+    return st.floats(min_value=meta["minimum"], max_value=1e3, allow_nan=False, allow_infinity=False)
+
+
+_OPTIONS = st.fixed_dictionaries({}, optional={f.name: _value_strategy(f) for f in option_fields()})
+
+
+@settings(max_examples=200, deadline=None)
+@given(_OPTIONS)
+def test_cli_args_parse_back_to_the_same_options(kw):
+    opts = Options(**kw)
+    ns = build_parser().parse_args(["reduce", "--function", "1", "--out", "x", *opts.cli_args()])
+    from trivsel.options import from_namespace
+
+    assert from_namespace(ns) == opts
+
+
+@settings(max_examples=100, deadline=None)
+@given(_OPTIONS, _OPTIONS)
+def test_variant_tags_are_unique_per_option_set(a, b):
+    oa, ob = Options(**a), Options(**b)
+    assert (variant_tag(oa) == variant_tag(ob)) == (oa == ob)
+
+
+def test_every_field_is_a_cli_flag_a_reduce_keyword_a_schema_entry_and_documented():
+    params = inspect.signature(trivsel.reduce).parameters
+    flags = {a.dest for a in build_parser()._subparsers._group_actions[0].choices["reduce"]._actions}
+    schema = config_schema()["properties"]
+    doc = options_markdown()
+    for f in option_fields():
+        assert f.name in params and params[f.name].kind is inspect.Parameter.KEYWORD_ONLY
+        assert params[f.name].default == f.default
+        assert f.name in flags
+        assert f.name in schema
+        assert f"| `{f.name}` |" in doc
+        assert f"    {f.name} : " in trivsel.reduce.__doc__
+    assert {f.name for f in fields(Options)} == set(schema)
+
+
+def test_generated_files_are_up_to_date():
+    r = subprocess.run([sys.executable, "-m", "trivsel.options", "--root", str(REPO), "--check"],
+                       capture_output=True, text=True)
+    assert r.returncode == 0, r.stdout + r.stderr
+    assert json.loads((REPO / "workflow/schemas/options.schema.json").read_text()) == config_schema()
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"method": "bottom-up"}, "unknown method 'bottom-up': choose one of paper, greedy"),
+    ({"criterion": "l3"}, "unknown criterion 'l3'"),
+    ({"final_pass": "yes"}, "final_pass must be true or false, got 'yes'"),
+    ({"seed": -1}, "seed must be >= 0, got -1"),
+    ({"rel_tol": float("inf")}, "rel_tol must be finite, got inf"),
+    ({"rel_tol": float("nan")}, "rel_tol must be finite"),
+    ({"max_flips": 1.5}, "max_flips must be an integer, got 1.5"),
+    ({"values": []}, "values must name at least one of data, fit"),
+    ({"values": ["data", "best"]}, "unknown values 'best'"),
+])
+def test_bad_options_are_one_line_input_errors(kw, message):
+    with pytest.raises(trivsel.InputError, match=message.replace("(", r"\(").replace(")", r"\)")) as e:
+        Options(**kw)
+    assert "\n" not in str(e.value)
+
+
+def test_method_defaults_live_in_the_method_module_and_resolve():
+    for name, module in METHODS.items():
+        resolved = Options(method=name).resolve()
+        for key, value in module.DEFAULTS.items():
+            assert getattr(Options(), key) is None, "a method default overrides only fields defaulting to None"
+            assert getattr(resolved, key) == value
+        assert Options(method=name, criterion="max").resolve().criterion == "max"
+    assert all(getattr(Options().resolve(), f.name) is not None for f in option_fields())
+
+
+def test_every_method_module_has_the_protocol():
+    for name, module in METHODS.items():
+        assert get_method(name) is module and module.NAME == name
+        for attr in ("DEFAULTS", "GREEDY_QUEUE", "KERNEL", "needs_curvature", "check", "rank", "start", "advance"):
+            assert hasattr(module, attr), f"method {name} lacks {attr}"
+
+
+def test_reduce_takes_an_options_object_and_keyword_overrides():
+    base = trivsel.reduce(4, n=6, fractions=[0.3], method="greedy", greedy_key="sse")
+    via = trivsel.reduce(4, n=6, fractions=[0.3], options=trivsel.Options(method="greedy", greedy_key="sse"))
+    over = trivsel.reduce(4, n=6, fractions=[0.3], options=trivsel.Options(method="greedy"), greedy_key="sse")
+    for r in (via, over):
+        assert (r.selected == base.selected).all() and r.options == base.options
+    with pytest.raises(TypeError, match="unexpected keyword argument 'own_vertices'"):
+        trivsel.reduce(4, n=6, fractions=[0.3], own_vertices=False)
+
+
+def _imports(path):
+    tree = ast.parse(path.read_text())
+    for node in ast.walk(tree):
+        if isinstance(node, ast.ImportFrom):
+            yield ("." * node.level) + (node.module or "")
+        elif isinstance(node, ast.Import):
+            yield from (a.name for a in node.names)
+
+
+def test_the_library_never_imports_the_study():
+    for path in LIBRARY.rglob("*.py"):
+        if "study" in path.relative_to(LIBRARY).parts:
+            continue
+        for name in _imports(path):
+            assert "study" not in name, f"{path.relative_to(REPO)} imports {name}"
+
+
+def test_import_trivsel_is_light():
+    code = ("import sys, trivsel; heavy = [m for m in ('matplotlib', 'vtk', 'vtkmodules', 'pyvista', 'snakemake', "
+            "'numba', 'pandas', 'trivsel.study') if m in sys.modules]; print(heavy)")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+    code = ("import sys, trivsel; trivsel.reduce(4, n=4, fractions=[0.5]); "
+            "print([m for m in ('matplotlib', 'vtk', 'vtkmodules', 'snakemake', 'trivsel.study') if m in sys.modules])")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert out.strip() == "[]"
+
+
+def test_no_import_cycles_in_the_library():
+    """Module-level imports between trivsel modules form no cycle."""
+    graph = {}
+    for path in LIBRARY.rglob("*.py"):
+        mod = ".".join(path.relative_to(REPO).with_suffix("").parts).removesuffix(".__init__")
+        pkg = mod if path.name == "__init__.py" else mod.rpartition(".")[0]
+        deps = set()
+        for node in ast.parse(path.read_text()).body:  # module level only: lazy imports may close loops
+            if isinstance(node, ast.ImportFrom) and node.level:
+                base = pkg
+                for _ in range(node.level - 1):
+                    base = base.rpartition(".")[0]
+                target = f"{base}.{node.module}" if node.module else base
+                deps.add(target)
+                deps.update(f"{target}.{a.name}" for a in node.names)
+        graph[mod] = deps
+    graph = {m: {d for d in deps if d in graph and d != m} for m, deps in graph.items()}
+
+    def visit(m, stack):
+        if m in stack:
+            raise AssertionError("import cycle: " + " -> ".join(stack[stack.index(m):] + [m]))
+        for d in graph[m]:
+            visit(d, stack + [m])
+
+    for m in graph:
+        visit(m, [])

@@ -1,0 +1,96 @@
+"""The output contract of `trivsel reduce --out`: an input is never overwritten, a folder never
+mixes two runs, a failure or an interruption leaves the previous outputs intact and no litter."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+
+import trivsel.io as tio
+from trivsel.cli import main
+
+
+def _run(*args):
+    return main(["reduce", "--function", "4", "--n", "4", *args])
+
+
+def _listing(folder):
+    return sorted(p.name for p in folder.iterdir())
+
+
+def test_an_input_inside_the_output_folder_is_refused_before_any_work(tmp_path, capsys):
+    out = tmp_path / "out"
+    assert _run("--fractions", "0.5", "--out", str(out)) == 0
+    mesh = out / "mesh_0.5.vtu"
+    before = mesh.read_bytes()
+    capsys.readouterr()
+    rc = main(["reduce", str(mesh), "--array", "value", "--fractions", "0.5", "--out", str(out)])
+    err = capsys.readouterr().err
+    assert rc == 2 and "is inside the output folder" in err and err.count("\n") == 1
+    assert mesh.read_bytes() == before
+
+
+def test_an_existing_file_as_output_folder_is_refused(tmp_path, capsys):
+    f = tmp_path / "taken"
+    f.write_text("user data")
+    assert _run("--fractions", "0.5", "--out", str(f)) == 2
+    assert "is an existing file" in capsys.readouterr().err
+    assert f.read_text() == "user data"
+
+
+def test_a_new_run_replaces_exactly_the_previous_runs_files(tmp_path):
+    out = tmp_path / "d"
+    assert _run("--fractions", "0.5", "0.2", "--out", str(out)) == 0
+    (out / "notes.txt").write_text("mine")
+    assert _run("--fractions", "0.3", "--out", str(out)) == 0
+    assert _listing(out) == [tio.MANIFEST, "errors.csv", "mesh_0.3.vtu", "notes.txt", "result.json"]
+    assert json.loads((out / tio.MANIFEST).read_text())["files"] == ["errors.csv", "mesh_0.3.vtu", "result.json"]
+
+
+def test_a_failure_while_writing_keeps_the_previous_outputs_and_leaves_no_litter(tmp_path, monkeypatch):
+    out = tmp_path / "d"
+    assert _run("--fractions", "0.5", "0.2", "--out", str(out)) == 0
+    before = {p.name: p.read_bytes() for p in out.iterdir()}
+    calls = []
+    real = tio.snapshot_to_pyvista
+
+    def failing(result, snapshot):
+        calls.append(1)
+        if len(calls) == 2:
+            raise KeyboardInterrupt  # as Ctrl-C or SIGTERM would, half-way through the meshes
+        return real(result, snapshot)
+
+    monkeypatch.setattr(tio, "snapshot_to_pyvista", failing)
+    assert _run("--fractions", "0.4", "0.1", "--out", str(out)) == 130
+    assert {p.name: p.read_bytes() for p in out.iterdir()} == before
+
+
+def test_leftovers_of_a_killed_run_are_removed_by_the_next(tmp_path):
+    out = tmp_path / "d"
+    (out / ".trivsel-tmp-killed").mkdir(parents=True)
+    (out / ".trivsel-tmp-killed" / "mesh_0.5.vtu").write_text("half")
+    assert _run("--fractions", "0.5", "--out", str(out)) == 0
+    assert not [p for p in out.iterdir() if p.name.startswith(".trivsel-tmp-")]
+
+
+def test_sigterm_exits_130_with_one_line(tmp_path):
+    code = ("import sys, time, trivsel.reduction as r\n"
+            "real = r.reduce\n"
+            "def slow(*a, **k):\n"
+            "    print('started', flush=True); time.sleep(30); return real(*a, **k)\n"
+            "r.reduce = slow\n"
+            "from trivsel.cli import main\n"
+            f"sys.exit(main(['reduce', '--function', '4', '--n', '4', '--fractions', '0.5', '--out', r'{tmp_path}/o']))\n")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip() == "started"
+    p.send_signal(signal.SIGTERM)
+    out, err = p.communicate(timeout=60)
+    assert p.returncode == 130, err
+    assert err.strip().splitlines() == ["trivsel: interrupted; the output folder is as it was before this run"]
+    assert not (tmp_path / "o").exists()
