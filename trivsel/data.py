@@ -43,6 +43,11 @@ class PointData:
         Physical placement of a grid.
     name : str
         A label used in output tables (function number or file stem).
+    file_index : (N,) int64 or None
+        The point id of each point in the file it was read from, when that order
+        differs from trivsel's (a VTK image numbers its points x fastest, trivsel's
+        grids x slowest); ``None``: the point's own index.  Written to the output
+        meshes as ``original_index``.
     """
 
     points: np.ndarray
@@ -53,6 +58,12 @@ class PointData:
     spacing: np.ndarray | None = None
     name: str = "data"
     meta: dict = field(default_factory=dict)
+    file_index: np.ndarray | None = None
+
+    def file_ids(self, indices):
+        """The input file's point ids of the given (trivsel) point indices."""
+        indices = np.asarray(indices, np.int64)
+        return indices if self.file_index is None else self.file_index[indices]
 
     @property
     def is_grid(self) -> bool:

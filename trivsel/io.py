@@ -115,7 +115,13 @@ def _read_vtk(p, array):
         if np.any(np.asarray(mesh.direction_matrix) != np.eye(3)):
             raise InputError(f"image {str(p)!r} has a rotated direction matrix; not supported")
         v3 = vals.reshape((nz, ny, nx)).transpose(2, 1, 0)  # VTK order is x fastest
-        return grid_from_array(v3, mesh.origin, mesh.spacing, name=p.stem)
+        spacing = np.asarray(mesh.spacing, float)
+        # the first point sits at origin + extent_min * spacing, not at the origin
+        origin = np.asarray(mesh.origin, float) + np.asarray(mesh.extent[0::2], float) * spacing
+        data = grid_from_array(v3, origin, spacing, name=p.stem)
+        i, j, k = data.ijk.T
+        data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
+        return data
     return scattered(np.asarray(mesh.points, float), vals, name=p.stem)
 
 
@@ -156,7 +162,9 @@ def save_npz(data: PointData, path):
 def snapshot_to_pyvista(result, snapshot):
     """The snapshot's mesh as a pyvista UnstructuredGrid over the selected points.
 
-    Point data: ``value`` (the selected points' own values), ``original_index``,
+    Point data: ``value`` (the selected points' own values), ``original_index``
+    (the point's id in the input: its row in a ``.csv`` or ``.npz``, its VTK point id
+    in a ``.vti``/``.vtu``; for ``--function`` grids the C-order index over (i, j, k)),
     ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
     and, with ``values="fit"``, ``fitted_value``.
     """
@@ -173,7 +181,7 @@ def snapshot_to_pyvista(result, snapshot):
         fitted = np.empty(len(sel))
         fitted[np.searchsorted(sel, snapshot.fit["vertices"])] = snapshot.fit["values"]
         grid.point_data["fitted_value"] = fitted
-    grid.point_data["original_index"] = sel
+    grid.point_data["original_index"] = result.data.file_ids(sel)
     if result.curvature is not None:  # greedy does not compute it
         grid.point_data["curvature"] = result.curvature[sel]
     grid.field_data["fraction"] = np.array([snapshot.fraction])

@@ -15,19 +15,20 @@ __all__ = ["total_rms_error", "total_max_error", "error_norms", "face_residual_r
 
 
 def total_rms_error(residuals, mask=None) -> float:
-    """E_RMS of eq. (19) over all points, or over ``mask`` normalised by its own count."""
+    """E_RMS of eq. (19) over all points, or over ``mask`` normalised by its own count
+    (NaN when there is no point to measure, e.g. no interior point)."""
     r = np.asarray(residuals, float)
     if mask is not None:
         r = r[np.asarray(mask, bool)]
-    return float(np.sqrt(np.mean(r * r))) if r.size else 0.0
+    return float(np.sqrt(np.mean(r * r))) if r.size else float("nan")
 
 
 def total_max_error(residuals, mask=None) -> float:
-    """E_inf of eq. (20) over all points, or over ``mask``."""
+    """E_inf of eq. (20) over all points, or over ``mask`` (NaN when it selects no point)."""
     r = np.asarray(residuals, float)
     if mask is not None:
         r = r[np.asarray(mask, bool)]
-    return float(np.max(np.abs(r))) if r.size else 0.0
+    return float(np.max(np.abs(r))) if r.size else float("nan")
 
 
 def error_norms(residuals, interior_mask) -> dict:

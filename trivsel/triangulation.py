@@ -236,5 +236,12 @@ def hull_boundary_mask(points, rtol: float = 1e-12) -> np.ndarray:
     p = np.asarray(points, float)
     hull = ConvexHull(p)
     scale = np.max(np.abs(p)) if p.size else 1.0
-    dist = p @ hull.equations[:, :3].T + hull.equations[:, 3]
-    return np.any(np.abs(dist) <= rtol * max(scale, 1e-300), axis=1)
+    tol = rtol * max(scale, 1e-300)
+    eq = hull.equations
+    out = np.zeros(len(p), bool)
+    # in chunks: a points x facets distance matrix would need gigabytes for large clouds
+    step = max(1, (1 << 22) // max(len(eq), 1))
+    for s in range(0, len(p), step):
+        dist = p[s:s + step] @ eq[:, :3].T + eq[:, 3]
+        out[s:s + step] = np.any(np.abs(dist) <= tol, axis=1)
+    return out
