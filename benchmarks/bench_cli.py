@@ -1,0 +1,137 @@
+"""Whole processes against whole processes: `trivsel reduce FILE.vti` against a VTK script.
+
+Both sides start a fresh Python process, import what they need, read the same ``.vti``
+(Table-1 function 4 on an (n+1)^3 grid), reduce it to 10 % of its points and write a
+``.vtu``.  VTK's side is what a VTK user would run, at its fastest: every combination
+of the two tetrahedral splits a user reaches for (pyvista's ``triangulate()``, 5 tets
+per cell; the Kuhn split, 6) and the two ways to stop
+``vtkUnstructuredGridQuadricDecimation`` (``SetTargetReduction(0.9)``, or
+``SetNumberOfEdgesToDecimate`` to the same vertex count as trivsel) is timed, and the
+fastest variant's median counts.  Runs alternate between the programs so that a
+change in the machine's load hits both.  trivsel's numba kernels are compiled once
+before the timing (a first-use cost, measured by ``trivsel compile``).
+
+    python benchmarks/bench_cli.py                      # n = 32, 64; 3 runs each
+    python benchmarks/bench_cli.py --n 32 64 128 --repeats 3
+
+Prints one table: median seconds per program and the ratio trivsel / VTK's fastest.
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+VTK_SCRIPT = r'''
+import sys
+import numpy as np
+import pyvista as pv
+from vtkmodules.vtkFiltersCore import vtkUnstructuredGridQuadricDecimation
+
+src, dst, split, stop, n_keep = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], int(sys.argv[5])
+image = pv.read(src)
+if split == "pv5":
+    grid = image.triangulate()
+else:  # the Kuhn split: six tets around each cube's main diagonal
+    nx, ny, nz = image.dimensions
+    i, j, k = np.meshgrid(np.arange(nx - 1), np.arange(ny - 1), np.arange(nz - 1), indexing="ij")
+    base = (i + nx * (j + ny * k)).ravel()
+    e = np.array([1, nx, nx * ny])
+    tets = []
+    for a, b in ((0, 1), (0, 2), (1, 0), (1, 2), (2, 0), (2, 1)):
+        c = 3 - a - b
+        tets.append(np.stack([base, base + e[a], base + e[a] + e[b], base + e[a] + e[b] + e[c]], axis=1))
+    tets = np.concatenate(tets)
+    P = np.asarray(image.points)
+    a_, b_, c_, d_ = (P[tets[:, q]] for q in range(4))
+    neg = np.einsum("ij,ij->i", np.cross(b_ - a_, c_ - a_), d_ - a_) < 0
+    tets[neg] = tets[neg][:, [0, 2, 1, 3]]  # positively oriented, as VTK's own split
+    cells = np.hstack([np.full((len(tets), 1), 4), tets]).ravel()
+    grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, np.uint8), image.points)
+    grid.point_data["f"] = image.point_data["f"]
+grid.point_data.active_scalars_name = "f"
+flt = vtkUnstructuredGridQuadricDecimation()
+flt.SetInputData(grid)
+flt.SetScalarsName("f")
+if stop == "target":
+    flt.SetTargetReduction(0.9)
+else:
+    flt.SetTargetReduction(0.0)
+    flt.SetNumberOfEdgesToDecimate(grid.n_points - n_keep)
+flt.Update()
+out = pv.wrap(flt.GetOutput())
+out.save(dst)
+print(out.n_points)
+'''
+
+
+def write_vti(n, path):
+    import numpy as np
+    import pyvista as pv
+
+    import trivsel
+
+    d = trivsel.sample_grid(4, n)
+    img = pv.ImageData(dimensions=d.shape, spacing=tuple(d.spacing), origin=tuple(d.origin))
+    img.point_data["f"] = d.values.reshape(d.shape).ravel(order="F")  # VTK order: x fastest
+    img.save(path)
+    return d.n_points
+
+
+def run(cmd):
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    seconds = time.perf_counter() - t0
+    if r.returncode:
+        raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
+    return seconds, r.stdout
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--n", type=int, nargs="+", default=[32, 64], help="grid intervals per axis")
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--methods", nargs="+", default=["paper", "greedy"])
+    a = ap.parse_args(argv)
+    from trivsel.selection import count_for_fraction
+
+    py = sys.executable
+    subprocess.run([py, "-m", "trivsel", "compile"], check=True, capture_output=True)
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        tmp = Path(tmp)
+        script = tmp / "vtk_decimate.py"
+        script.write_text(VTK_SCRIPT)
+        for n in a.n:
+            vti = tmp / f"f4_n{n}.vti"
+            N = write_vti(n, vti)
+            keep = count_for_fraction(0.1, N)
+            progs = {m: [py, "-m", "trivsel", "reduce", str(vti), "--array", "f", "--fractions", "0.1",
+                         "--method", m, "--progress", "never", "--out", str(tmp / f"out_{m}")] for m in a.methods}
+            for split in ("pv5", "kuhn6"):
+                for stop in ("target", "edges"):
+                    progs[f"vtk-{split}-{stop}"] = [py, str(script), str(vti), str(tmp / "vtk.vtu"), split, stop,
+                                                    str(keep)]
+            times = {k: [] for k in progs}
+            for _ in range(a.repeats):
+                for name, cmd in progs.items():
+                    times[name].append(run(cmd)[0])
+            med = {k: statistics.median(v) for k, v in times.items()}
+            vtk_best = min((k for k in med if k.startswith("vtk-")), key=med.get)
+            for m in a.methods:
+                rows.append((n, N, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best]))
+            print(f"n = {n}: " + ", ".join(f"{k} {v:.2f} s" for k, v in med.items()), flush=True)
+    print(f"\nf4 to 10 %, whole processes, medians of {a.repeats} alternating runs")
+    print("| points | method | trivsel s | VTK's fastest | VTK s | ratio |")
+    print("|---|---|---|---|---|---|")
+    for n, N, m, t, best, tv, ratio in rows:
+        print(f"| {n + 1}^3 = {N} | {m} | {t:.2f} | {best} | {tv:.2f} | **{ratio:.2f}** |")
+
+
+if __name__ == "__main__":
+    main()
