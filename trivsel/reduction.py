@@ -230,7 +230,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         evaluation takes well under 1 % of a run.
     check : callable, optional
         Called as ``check(mesh)`` after the first insertion and at every snapshot
-        (tests pass :func:`trivsel.check.check_mesh`).
+        (tests pass :func:`trivsel.mesh.check_mesh`).
     progress : callable, optional
         Called about 200 times during the run as ``progress(n_selected, n_target,
         e_rms, e_inf, seconds)`` with the current E_RMS and E_inf over all points
@@ -387,11 +387,11 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
     N = data.n_points
     greedy = options["method"] == "greedy"
     tm = _mesh.TetMesh(data.points, data.values, data.ijk, criterion=options["criterion"],
-                       own_vertices=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
+                       vertices_in_error=options["own_vertices"], rel_tol=options["rel_tol"], tol_inf=tol_inf,
                        first_improving=options["first_improving"], tet_capacity=tet_cap,
                        pool_capacity=pool_cap, greedy=greedy, greedy_key=options["greedy_key"], candidates=order,
                        boundary_flips=options["boundary_flips"],
-                       max_rounds=options["max_flips"] or _mesh.UNLIMITED_ROUNDS, memory=options["swap_memory"])
+                       max_rounds=options["max_flips"] or _mesh.UNLIMITED_ROUNDS, swap_memory=options["swap_memory"])
     tm.start(start_tets)
     n_fixed = len(fixed)
     pos = 0  # candidates inserted so far
@@ -435,8 +435,8 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
                 stalled = new_pos < stop  # tolerance met (or, greedy, nothing left to improve)
                 pos = new_pos
                 if progress is not None:
-                    resid = tm.S[_mesh._RESID]
-                    progress(n_fixed + pos, n_fixed + last, float(np.sqrt(max(tm.S[_mesh._ACC][0], 0.0) / N)),
+                    resid = tm.resid
+                    progress(n_fixed + pos, n_fixed + last, float(np.sqrt(max(tm.sse_sum, 0.0) / N)),
                              float(np.max(np.abs(resid))), time.perf_counter() - t_start)
                 if stalled:
                     reached_tol = True
@@ -474,7 +474,7 @@ def _run(data, fixed, start_tets, order, targets, options, interior, tol_rms, to
         if s.n_selected in req:
             s.fraction = req[s.n_selected]
     stats = {"flips": tm.flips, "cases": tm.cases, "evaluations": tm.evaluations, "tets": int(len(tm.live_ids())),
-             "round_cap_hits": int(tm.counters[_mesh.C_ROUNDCAP])}
+             "round_cap_hits": tm.round_cap_hits}
     if greedy:
         stats["inserted"] = np.asarray(inserted, np.int64)
     return snapshots, stats, t_err
