@@ -66,9 +66,9 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
     soon as ``before - partial <= reltol * before + abstol`` the flip cannot pass
     :func:`swap`'s test for an improvement and the evaluation stops, returning
     the partial sum (a lower bound of ``after`` that decides the same).
-    ``abstol = -inf`` evaluates in full.  (Stopping also when the flip cannot
-    beat the best one found so far in the round was measured slower: such
-    configurations must be evaluated again in the next round.)
+    ``abstol = -inf`` evaluates in full.  It does not also stop when the flip
+    cannot beat the best one found so far in the round: such a configuration
+    would have to be evaluated again in a later round.
     """
     return _evaluate_at(S, np.empty(4, np.int64), old, nold, newq, nnew, reltol, abstol, False)
 
@@ -76,9 +76,9 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
 @njit(cache=True, _nrt=False)
 def _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol, reuse):
     """:func:`_evaluate` with room ``srt`` for the sorted ids, allocating nothing, and
-    compiled without reference counting: :func:`swap` calls it in its loop, where the
-    29 arrays of the state tuple would otherwise be counted in and out per call
-    (about a third of a greedy run on 65^3, sampled).
+    compiled without reference counting: swapping calls it for every configuration
+    it evaluates, where the arrays of the state would otherwise be counted in and
+    out per call.
 
     ``reuse``: the previous call evaluated the same old tets (the other diagonal of a
     4-4 configuration), so their points are still in ``S.wbuf`` and, for SSE,

@@ -67,7 +67,7 @@ def _config23_at(tets, nbr, t, i, old, newq):
 def _edge_opposite(tets, t, a, b):
     """The two vertices (x, y) of tet t other than edge (a, b), with orient3d(a, b, x, y) > 0.
 
-    Every tet of the mesh is positively oriented (:mod:`trivsel.check` tests it), so
+    Every tet of the mesh is positively oriented (:func:`~trivsel.mesh.validation.check_mesh` tests it), so
     the sign is the parity of the local-index permutation (:data:`EDGE_EVEN`), not a
     predicate: this runs for every edge of every tet of O in every swap round.
     """
@@ -104,8 +104,9 @@ def edge_ring(S, t, a, b, old, ring):
 
 @njit(cache=True, _nrt=False)
 def _edge_ring(tets, nbr, om, st, t, a, b, old, ring):
-    """:func:`edge_ring` on the arrays themselves (taking them out of the state tuple
-    per walk was the largest single cost of a greedy run, sampled).
+    """:func:`edge_ring` on the arrays themselves: taking them out of the state
+    would cost reference counting per walk, and swapping walks around every edge
+    of every tet of O in every round.
 
     For :func:`swap`'s scan of O it gives up (returns -3) as soon as the walk meets
     a tet of O (``om[u] == st``) with a smaller id than t, from which the scan

@@ -45,9 +45,9 @@ def _sign(I, P, ui, a, b, c, d):
     """Sign of orient3d of original points a, b, c, d: exact on the integer grid
     coordinates ``I`` when ``ui``, robust on the float coordinates ``P`` otherwise.
 
-    The hot predicates take the coordinate arrays themselves, not the state tuple:
-    pulling an array out of the tuple costs a reference-count update per call,
-    which made a containment test about 30 times slower."""
+    It takes the coordinate arrays themselves, not the state: pulling an array out
+    of the state costs a reference-count update per call, far more than the
+    predicate itself."""
     if ui:
         v = orient3d_int(I[a, 0], I[a, 1], I[a, 2], I[b, 0], I[b, 1], I[b, 2],
                          I[c, 0], I[c, 1], I[c, 2], I[d, 0], I[d, 1], I[d, 2])
@@ -109,10 +109,9 @@ def _locate_at(ui, pi, pf, pl, qf, fq, p, q0, q1, q2, q3):
     The barycentric weights (eq. 13) are the four sub-volumes with p replacing one
     vertex; the interpolant is the linear polynomial L of eq. 16.  On grids the
     exact integer sub-volumes (from the face planes ``pl``) serve both as signs and
-    as weights; on floats the
-    signs are robust (:func:`orient3d_float_sign`).  Scalars and tuples only: it is
+    as weights; on floats the signs are robust (:func:`orient3d_float_sign`).  Scalars and tuples only: it is
     inlined into the point loops, where every array argument of an inlined
-    function cost a reference-count update per point (measured by sampling).
+    function would cost a reference-count update per point.
     """
     if ui:
         w0 = pl[0] * pi[0] + pl[1] * pi[1] + pl[2] * pi[2] + pl[3]
@@ -169,13 +168,13 @@ def _locate(I, P, F, ui, q0, q1, q2, q3, p):
 
 @njit(cache=True)
 def _orient(S, a, b, c, d):
-    """:func:`_sign` on the state tuple (for checks and tests; not for inner loops)."""
+    """:func:`_sign` on the state (for checks and tests; not for inner loops)."""
     return _sign(S.ijk, S.points, S.opt.use_int, a, b, c, d)
 
 
 @njit(cache=True)
 def _locate_in(S, q0, q1, q2, q3, p):
-    """:func:`_locate` on the state tuple (for checks and tests; not for inner loops)."""
+    """:func:`_locate` on the state (for checks and tests; not for inner loops)."""
     return _locate(S.ijk, S.points, S.values, S.opt.use_int, q0, q1, q2, q3, p)
 
 
@@ -187,8 +186,8 @@ def _positive(S, newq, nnew):
 
 @njit(cache=True, _nrt=False)
 def _positive_at(I_, P_, ui_, newq, nnew):
-    """:func:`_positive` on the coordinate arrays (for :func:`swap`'s loop: every array
-    taken out of the state tuple costs a reference-count update per call)."""
+    """:func:`_positive` on the coordinate arrays (for swapping's loop: every array
+    taken out of the state costs a reference-count update per call)."""
     for k in range(nnew):
         if _sign(I_, P_, ui_, newq[k, 0], newq[k, 1], newq[k, 2], newq[k, 3]) <= 0:
             return False

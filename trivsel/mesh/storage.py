@@ -134,7 +134,7 @@ def _sorted3(a, b, c):
 @njit(cache=True)
 def _copy1(dst, src, n):
     """``dst[:n] = src[:n]`` as a loop: an array assignment makes numba compile its
-    shape-mismatch error message (string formatting, about 2 s, once)."""
+    shape-mismatch error message (string formatting, slow to compile)."""
     for j in range(n):
         dst[j] = src[j]
 
@@ -150,7 +150,7 @@ def _copy2(dst, src, n):
 @njit(cache=True, _nrt=False)
 def _sort_into(a, n, out):
     """``out[:n] = np.sort(a[:n])`` for the few ids of a configuration (insertion sort;
-    numba's quicksort costs about a second of compilation)."""
+    numba's quicksort is slow to compile)."""
     for i in range(n):
         v = a[i]
         j = i
