@@ -52,6 +52,9 @@ def helper_signatures(S):
         (storage._gather, (st, v8, i8)),
         (geometry._positive_at, (m8, f82, b1, m8, i8)),
         (geometry._positive, (st, m8, i8)),
+        (flips._edge_opposite, (m4, i8, i8, i8)),
+        (flips.quads32, (i8, i8, v8, m8)),
+        (flips.quads44, (i8, i8, v8, i8, m8)),
         (flips._config23_at, (m4, m4, i8, i8, v8, m8)),
         (flips._config22_at, (st, v8, i8, i8, i8, i8, v8, v8, v8, m8)),
         (criteria._cannot_beat, (i8,) + tuple(typeof(a) for a in (S.tsse, S.tmax, S.tcnt)) + (v8, i8, f8)),
@@ -92,9 +95,9 @@ def pin_signatures(S):
 
 # The pinned helpers that only swapping uses (part 0 of compile_kernels; _evaluate is
 # its wrapper for TetMesh)
-_SWAP_ONLY = (swap._push_unique, swap._with_room, flips._config23_at, flips._config22_at, criteria._cannot_beat,
-              criteria._evaluate_at, criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store,
-              swap._consider)
+_SWAP_ONLY = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.quads32, flips.quads44,
+              flips._config23_at, flips._config22_at, criteria._cannot_beat, criteria._evaluate_at,
+              criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store, swap._consider)
 _LEAVES = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
            storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)
 PARTS = (0, 1, 2)
