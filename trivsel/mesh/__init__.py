@@ -13,14 +13,20 @@ Modules, in the order of their dependencies:
 * :mod:`~trivsel.mesh.greedy`, :mod:`~trivsel.mesh.drivers` - the loops of the two methods;
 * :mod:`~trivsel.mesh.compile` - signature pinning and :func:`compile_kernels`;
 * :mod:`~trivsel.mesh.tetmesh` - :class:`TetMesh`, the Python face of it all;
-* :mod:`~trivsel.mesh.validation` - :func:`check_mesh`, the mesh-validity checker.
+* :mod:`~trivsel.mesh.validation` - :func:`check_mesh`, the mesh-validity checker;
+* :mod:`~trivsel.mesh.cache` - numba's on-disk cache, stamped with all the package's sources.
 """
 
-from .compile import compile_kernels
-from .criteria import CRITERIA
-from .state import ERR_DUPLICATE, ERR_LINK, ERR_POOLCAP, ERR_TETCAP, ERR_UNCOVERED, UNLIMITED_ROUNDS, make_state
-from .tetmesh import MeshError, TetMesh, face_neighbours
-from .validation import MeshInvalid, check_mesh
+from .cache import install as _install_cache
+
+_install_cache()  # before any kernel is defined
+
+from .compile import compile_kernels  # noqa: E402
+from .criteria import CRITERIA  # noqa: E402
+from .state import (ERR_DUPLICATE, ERR_LINK, ERR_POOLCAP, ERR_TETCAP, ERR_UNCOVERED,  # noqa: E402
+                    UNLIMITED_ROUNDS, make_state)
+from .tetmesh import MeshError, TetMesh, face_neighbours  # noqa: E402
+from .validation import MeshInvalid, check_mesh  # noqa: E402
 
 __all__ = ["TetMesh", "MeshError", "ERR_TETCAP", "ERR_POOLCAP", "ERR_LINK", "ERR_UNCOVERED", "ERR_DUPLICATE",
            "CRITERIA", "UNLIMITED_ROUNDS", "compile_kernels", "check_mesh", "MeshInvalid", "make_state",

@@ -1,12 +1,19 @@
 """The swap criteria and the evaluation of a configuration (section 4, eqs. 14-15).
 
-One place for every criterion a flip is judged by:
+One place for every criterion a flip is judged by.  A flip replaces the old
+tets of a configuration by new ones over the same points; it is judged by the
+change of
 
-* ``CRIT_RMS``: the sum over the tets of their RMS error (eq. 14);
-* ``CRIT_MAX``: the sum over the tets of their max error (eq. 15);
-* ``CRIT_SSE``: the global sum of squared residuals (each point counted once).
+* ``CRIT_RMS``: the sum over the tets of their RMS error (eq. 14),
+  ``sqrt(sum r^2 / n)`` over the n points in the closed tet;
+* ``CRIT_MAX``: the sum over the tets of their max error (eq. 15), ``max |r|``;
+* ``CRIT_SSE``: the sum of squared residuals over the configuration's points,
+  each counted once: the exact change of the global L2 error (eq. 19).
 
-:data:`CRITERIA` maps the option names to these codes.
+Residuals are ``r = f - L`` with L the linear interpolant of the tet (eq. 16).
+Under RMS and max, a tet's own four vertices (residual 0) count in n only with
+``vertices_in_error`` (Definition 2).  :data:`CRITERIA` maps the option names to
+the codes.
 """
 
 from __future__ import annotations
@@ -21,14 +28,29 @@ from .storage import _gather_at, _sort_into
 CRIT_RMS, CRIT_MAX, CRIT_SSE = 0, 1, 2
 CRITERIA = {"rms": CRIT_RMS, "max": CRIT_MAX, "sse": CRIT_SSE}
 
-# Margin of _cannot_beat against the rounding of the evaluated sums (a sum of m
-# non-negative terms is exact to m * 2^-53 relative; m < 10^6 points per configuration)
+#: Margin of :func:`_cannot_beat` against the rounding of the evaluated sums (a sum of m
+#: non-negative terms is exact to m * 2^-53 relative; m < 10^6 points per configuration)
 _BOUND_MARGIN = 1.0 + 1e-9
 
 
 @njit(cache=True)
 def _crit(c, sse, mx, cnt):
-    """Per-tet error for swap criterion c: RMS (eq. 14) if 0, max (eq. 15) if 1, else SSE."""
+    """The error of one tet under swap criterion ``c``.
+
+    Parameters
+    ----------
+    c : int
+        ``CRIT_RMS``, ``CRIT_MAX`` or ``CRIT_SSE``.
+    sse, mx : float
+        Sum of the squared residuals and max |residual| of the tet's points.
+    cnt : int
+        Number of those points.
+
+    Returns
+    -------
+    float
+        ``sqrt(sse / cnt)`` (eq. 14; 0 without points), ``mx`` (eq. 15) or ``sse``.
+    """
     if c == CRIT_RMS:
         return np.sqrt(sse / cnt) if cnt > 0 else 0.0
     if c == CRIT_MAX:
@@ -64,7 +86,7 @@ def _evaluate(S, old, nold, newq, nnew, reltol, abstol):
 
     ``after`` is a sum of non-negative terms, so its partial sums only grow: as
     soon as ``before - partial <= reltol * before + abstol`` the flip cannot pass
-    :func:`swap`'s test for an improvement and the evaluation stops, returning
+    swapping's test for an improvement and the evaluation stops, returning
     the partial sum (a lower bound of ``after`` that decides the same).
     ``abstol = -inf`` evaluates in full.  It does not also stop when the flip
     cannot beat the best one found so far in the round: such a configuration

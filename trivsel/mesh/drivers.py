@@ -19,11 +19,28 @@ from .swap import swap
 
 @njit(cache=True)
 def run_insertions(S, order, start, stop, tol_rms, n_total):
-    """Insert order[start:stop] one by one, each followed by swapping.
+    """The paper's method: insert ``order[start:stop]`` one by one (section 3's
+    ranking), each followed by swapping (section 4).
 
-    Stops early once sqrt(sum of squared residuals / n_total) <= tol_rms (if
-    tol_rms >= 0) or no residual exceeds the E_inf tolerance held in the options
-    (if it is >= 0).  Returns the position reached (exclusive).
+    Parameters
+    ----------
+    S : MeshState
+    order : int64 array
+        Candidate points, best first.
+    start, stop : int
+        The part of ``order`` to insert.
+    tol_rms : float
+        Stop once E_RMS = sqrt(sum of squared residuals / n_total) <= tol_rms
+        (eq. 19); negative for no tolerance.  The E_inf tolerance is the option
+        ``tol_inf``: stop once no residual exceeds it.
+    n_total : float
+        N, the number of original points.
+
+    Returns
+    -------
+    int
+        The position in ``order`` reached (exclusive); less than ``stop`` after
+        a tolerance is met or on an error (``S.ctr[C_ERROR]``).
     """
     ctr = S.ctr
     tolinf = S.opt.tol_inf
@@ -58,10 +75,14 @@ def global_pass(S):
 
 @njit(cache=True)
 def residuals(S, out):
-    """f - L at every original point, from every live tet containing it (eqs. 19-20).
+    """The residuals f - L at every original point, from every live tet containing it
+    (the terms of eqs. 19-20), into ``out``.
 
-    Returns the largest disagreement between two tets containing the same point
-    (zero for a continuous interpolant up to rounding).
+    Returns
+    -------
+    float
+        The largest disagreement between two tets containing the same point (zero
+        for a continuous interpolant, up to rounding).
     """
     I_ = S.ijk
     P_ = S.points
@@ -69,7 +90,7 @@ def residuals(S, out):
     ui_ = S.opt.use_int
     tets = S.tets
     alive = S.alive
-    F = S.values
+    F = F_
     pool = S.pool
     seen = np.zeros(F.shape[0], np.uint8)
     worst = 0.0
@@ -92,7 +113,9 @@ def residuals(S, out):
 
 @njit(cache=True)
 def point_weights(S, verts, weights):
-    """For every original point: the 4 vertices of a tet containing it and its barycentric weights."""
+    """For every original point p, the vertices of its owner tet into ``verts[p]`` and
+    p's barycentric weights in it (eq. 13, the sub-volumes over the volume) into
+    ``weights[p]``: L(p) = sum of weights times the vertex values (eq. 16)."""
     I_ = S.ijk
     P_ = S.points
     ui_ = S.opt.use_int

@@ -46,7 +46,7 @@ def config23(S, t, i, old, newq):
 
 @njit(cache=True, _nrt=False)
 def _config23_at(tets, nbr, t, i, old, newq):
-    """:func:`config23` on the mesh arrays (see :func:`_positive_at`)."""
+    """:func:`config23` on the mesh arrays (see :func:`_edge_ring`)."""
     u = nbr[t, i]
     if u < 0:
         return False
@@ -108,7 +108,7 @@ def _edge_ring(tets, nbr, om, st, t, a, b, old, ring):
     would cost reference counting per walk, and swapping walks around every edge
     of every tet of O in every round.
 
-    For :func:`swap`'s scan of O it gives up (returns -3) as soon as the walk meets
+    For the scan of O in :func:`~trivsel.mesh.swap.swap` it gives up (returns -3) as soon as the walk meets
     a tet of O (``om[u] == st``) with a smaller id than t, from which the scan
     evaluates this edge instead (every configuration once, from its smallest tet in
     O): about half of the walks stop early.  ``st = -1`` (no stamp) walks the whole
@@ -150,7 +150,7 @@ def edge_ring_open(S, t, a, b, old, ring):
 
 @njit(cache=True, _nrt=False)
 def _edge_ring_open_at(tets, nbr, t, a, b, old, ring):
-    """:func:`edge_ring_open` on the arrays themselves (see :func:`_evaluate_at`)."""
+    """:func:`edge_ring_open` on the arrays themselves (see :func:`_edge_ring`)."""
     cap = old.shape[0]
     x, y = _edge_opposite(tets, t, a, b)
     # walk backwards (across the face (a, b, x)) to the first tet of the open ring

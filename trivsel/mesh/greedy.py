@@ -38,8 +38,26 @@ def run_greedy(S, stop_nvert, tol_rms, n_total, log):
 
     Each tet's candidate (its contained non-vertex candidate point with the largest
     residual) sits in the heap; insertion and flips replace tets, and
-    :func:`_replace` pushes the new ones, so only touched tets are refreshed.
-    Inserted points are appended to ``log``; returns how many were inserted.
+    :func:`~trivsel.mesh.storage._replace` pushes the new ones, so only touched
+    tets are refreshed.
+
+    Parameters
+    ----------
+    S : MeshState
+    stop_nvert : int
+        Stop at this many vertices.
+    tol_rms : float
+        Stop once E_RMS <= tol_rms (eq. 19; negative: no tolerance); also once no
+        residual exceeds the option ``tol_inf``, if set.
+    n_total : float
+        N, the number of original points.
+    log : int64 array
+        Receives the inserted points in order.
+
+    Returns
+    -------
+    int
+        How many points were inserted.
     """
     ctr = S.ctr
     tolinf = S.opt.tol_inf

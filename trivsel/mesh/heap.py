@@ -85,6 +85,8 @@ def _heap_rebuild(S):
 
 @njit(cache=True, _nrt=False)
 def _set_best(S, t, best, bestr):
+    """Record tet t's worst candidate ``best`` (-1: none) and its |residual| ``bestr``,
+    and, for the greedy method, push t with its current version."""
     S.tbest[t] = best
     S.tbestr[t] = bestr
     if S.opt.greedy and best >= 0:

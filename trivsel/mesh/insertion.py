@@ -1,4 +1,17 @@
-"""Point insertion: the three cases of section 4 and the first cone from the hull (section 3)."""
+"""Point insertion: the three cases of section 4 and the first cone from the hull (section 3).
+
+A selected point p splits the tets whose closed region contains it; each such tet
+is replaced by the tets joining p to its faces that do not contain p::
+
+    case (i)   p inside a tet     1 tet  -> 4 tets    p joined to the 4 faces
+    case (ii)  p inside a face    2 tets -> 6 tets    each joined to its 3 faces off p
+                                  (1 -> 3 on the hull)
+    case (iii) p inside an edge   k tets -> 2k tets   each joined to its 2 faces off the
+                                                      edge (k tets around it)
+
+All three go through :func:`~trivsel.mesh.storage._replace`; hull faces and
+edges are handled alike (``new_hull``: the split hull faces stay hull faces).
+"""
 
 from __future__ import annotations
 
@@ -12,13 +25,26 @@ from .storage import _copy2, _replace
 
 @njit(cache=True)
 def insert_point(S, p):
-    """Insert original point p (section 4, cases i-iii); returns (case, new tet ids).
+    """Insert original point p (section 4, cases i-iii).
 
     The tets whose closed region contains p are found from p's owner tet by
     crossing faces that contain p: one tet (case i, p interior: 1 -> 4), the one or
     two tets sharing a face (case ii: each -> 3), or all tets around an edge
     (case iii: each -> 2).  Each is replaced by the tets joining p to its faces
     that do not contain p.  Boundary faces and edges are handled alike.
+
+    Parameters
+    ----------
+    S : MeshState
+    p : int
+        An original point that is not a vertex yet.
+
+    Returns
+    -------
+    (int, int64 array)
+        The case (1, 2 or 3) and the new tet ids; (0, empty) with
+        ``S.ctr[C_ERROR]`` set if p coincides with a vertex (``ERR_DUPLICATE``)
+        or the change failed.
     """
     I_ = S.ijk
     P_ = S.points

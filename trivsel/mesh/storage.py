@@ -21,7 +21,7 @@ from numba import njit
 
 from .geometry import _locate_at, _tet_data
 from .heap import _set_best
-from .state import (A_SSE, C_ABOVE, C_ERROR, C_HW, C_NALIVE, C_NFREE, C_POOLTOP, C_STAMP, ERR_LINK,
+from .state import (A_SSE, C_ABOVE, C_ERROR, C_HW, C_NFREE, C_POOLTOP, C_STAMP, ERR_LINK,
                     ERR_POOLCAP, ERR_TETCAP, ERR_UNCOVERED)
 
 NEED_ROOM = -1  # _fill_tets: more room for (point, tet) memberships needed
@@ -45,7 +45,6 @@ def _alloc(S):
     S.tver[t] += 1
     S.tbest[t] = -1
     S.tbestr[t] = 0.0
-    ctr[C_NALIVE] += 1
     return t
 
 
@@ -55,7 +54,6 @@ def _kill(S, t):
     S.alive[t] = 0
     S.free[ctr[C_NFREE]] = t
     ctr[C_NFREE] += 1
-    ctr[C_NALIVE] -= 1
 
 
 @njit(cache=True)
@@ -388,8 +386,14 @@ def _replace(S, old, nold, newq, nnew, new_hull):
     ones, moves the old tets' points into the new tets that contain them (closed
     containment), recomputes their errors and the global residuals.  A new face
     that matches no face is an error, unless ``new_hull`` (insertion on a hull face
-    or edge splits hull faces): then it becomes a hull face.  Returns the
-    new tet ids (an empty array and S.ctr[C_ERROR] set on failure).
+    or edge splits hull faces): then it becomes a hull face.
+
+    Returns
+    -------
+    int64 array
+        The new tet ids, in the order of ``newq``; empty, with ``S.ctr[C_ERROR]``
+        set, on failure (``ERR_TETCAP``, ``ERR_LINK``, ``ERR_UNCOVERED``,
+        ``ERR_POOLCAP``).
     """
     tets = S.tets
     nbr = S.nbr

@@ -81,6 +81,7 @@ class TetMesh:
 
     @property
     def error_code(self):
+        """The kernel's error code (an ``ERR_*`` constant), 0 if none."""
         return int(self.S.ctr[C_ERROR])
 
     def _raise_on_error(self):
@@ -89,6 +90,7 @@ class TetMesh:
             raise MeshError(code, ERROR_MESSAGES.get(code, f"error {code}"))
 
     def live_ids(self):
+        """The ids of the live tets, ascending."""
         hw = self.S.ctr[C_HW]
         return np.flatnonzero(self.S.alive[:hw])
 
@@ -97,10 +99,12 @@ class TetMesh:
         return self.S.tets[self.live_ids()].astype(np.int64)
 
     def bucket(self, t):
+        """The original points in the closed tet t (a copy of its bucket)."""
         s, L = self.S.bstart[t], self.S.blen[t]
         return self.S.pool[s:s + L].copy()
 
     def vertices(self):
+        """The selected points (the vertices of the mesh), ascending."""
         return np.flatnonzero(self.S.isvert)
 
     # -- operations
@@ -126,17 +130,20 @@ class TetMesh:
         return case, ids
 
     def cone(self, p):
+        """Join p to every hull face (the first insertion); empty if p is not strictly inside."""
         ids = cone_from_hull(self.S, int(p))
         self._raise_on_error()
         return ids
 
     def swap(self, ids, with_neighbours=True):
+        """Data-dependent swapping from the tets ``ids`` (and their neighbours); returns the flips made."""
         ids = np.ascontiguousarray(ids, np.int64)
         n = swap(self.S, ids, len(ids), with_neighbours, self.S.opt.max_rounds)
         self._raise_on_error()
         return n
 
     def global_pass(self):
+        """The final swap over all tets, until nothing improves; returns the flips made."""
         n = global_pass(self.S)
         self._raise_on_error()
         return n
@@ -178,29 +185,26 @@ class TetMesh:
         quads32(int(a), int(b), ring, newq)
         if not _positive(self.S, newq, 2):
             return None
-        if not force:
-            before, after = _evaluate(self.S, old, 2, newq, 2, 0.0, -np.inf)
-            if not after < before:
-                return None
-        ids = _replace(self.S, old, 2, newq, 2, True)
-        self._raise_on_error()
-        return ids
+        return self._apply(old, 2, newq, 2, force, new_hull=True)
 
     def evaluate(self, old, newq):
+        """The criterion sums (before, after) of replacing the tets ``old`` by the quadruples ``newq``."""
         old = np.ascontiguousarray(old, np.int64)
         newq = np.ascontiguousarray(newq, np.int64)
         return _evaluate(self.S, old, len(old), newq, len(newq), 0.0, -np.inf)
 
-    def _apply(self, old, nold, newq, nn, force):
+    def _apply(self, old, nold, newq, nn, force, new_hull=False):
+        """Replace old by newq if the criterion sum decreases (or if ``force``); the new ids or None."""
         if not force:
             before, after = _evaluate(self.S, old, nold, newq, nn, 0.0, -np.inf)
             if not after < before:
                 return None
-        ids = _replace(self.S, old, nold, newq, nn, False)
+        ids = _replace(self.S, old, nold, newq, nn, new_hull)
         self._raise_on_error()
         return ids
 
     def run(self, order, start, stop, tol_rms=-1.0):
+        """Insert ``order[start:stop]``, each followed by swapping; returns the position reached."""
         k = run_insertions(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop), float(tol_rms),
                            float(self.S.values.shape[0]))
         self._raise_on_error()
@@ -233,6 +237,7 @@ class TetMesh:
         return out, worst
 
     def copy(self):
+        """An independent copy of the mesh."""
         other = TetMesh.__new__(TetMesh)
         other.S = copy_state(self.S)
         other.options = dict(self.options)
@@ -246,6 +251,7 @@ class TetMesh:
 
     @property
     def flips(self):
+        """Flips made so far, by configuration ("2-2" only with ``boundary_flips``)."""
         c = self.S.ctr
         out = {"2-3": int(c[C_FLIP23]), "3-2": int(c[C_FLIP32]), "4-4": int(c[C_FLIP44])}
         if self.S.opt.boundary_flips:
@@ -254,12 +260,13 @@ class TetMesh:
 
     @property
     def evaluations(self):
-        """Configurations :func:`swap` evaluated (``made``) and found in its memory
+        """Configurations :func:`~trivsel.mesh.swap.swap` evaluated (``made``) and found in its memory
         (``remembered``) so far."""
         c = self.S.ctr
         return {"made": int(c[C_EVALS]), "remembered": int(c[C_MEMHITS])}
 
     @property
     def cases(self):
+        """Insertions so far, by case of section 4: in a tet, on a face, on an edge."""
         c = self.S.ctr
         return {"tet": int(c[C_CASE1]), "face": int(c[C_CASE2]), "edge": int(c[C_CASE3])}
