@@ -79,7 +79,7 @@ def _with_room(buf, n, extra):
 
 @njit(cache=True, _nrt=False)
 def _config_key(tver, kind, d0, d1, old, nold, key):
-    """Fill ``key`` with the canonical key of a configuration (see above)."""
+    """Fill ``key`` with the canonical key of a configuration (see the module notes)."""
     key[0] = (kind << 60) | ((min(d0, d1) + 1) << 30) | (max(d0, d1) + 1)
     for k in range(4):
         key[1 + k] = 0
