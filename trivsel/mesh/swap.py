@@ -46,8 +46,8 @@ import numpy as np
 from numba import njit
 
 from .criteria import _cannot_beat, _evaluate_at
-from .flips import FLIP22, FLIP23, FLIP32, FLIP44, _config22_at, _config23_at, _edge_ring, quads32, quads44
-from .geometry import EDGES, _positive_at
+from .flips import _config23_at, _edge_ring, _edge_ring_open_at, quads32, quads44
+from .geometry import EDGES, _positive_at, _sign
 from .state import C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_MEMHITS, C_OSTAMP, C_ROUNDCAP
 from .storage import _copy1, _copy2, _replace
 
@@ -151,59 +151,52 @@ def _cache_store(hkey, hval, hn, slot, key, before, after):
 
 
 @njit(cache=True, _nrt=False)
-def _consider(S, hkey, hval, probes, hn, key, srt, best_gain, best_cfg, best_old, best_new, kind, d0, d1,
-              old, nold, newq, nnew, bound, reuse):
-    """Consider one flip for this round of :func:`swap`: the one place where a
-    configuration is checked, looked up in the memory or evaluated, and kept if it
-    is the best so far.
+def _try_flip22(S, srt, hkey, hval, hn, probes, key, t, a, b, old, old2, ring, newq, st, reltol, abstol):
+    """(gain, count of the evaluation memory) of the boundary 2-2 flip of hull edge
+    (a, b); the gain is 0 if the flip is not admissible or not improving enough.
 
-    The flip replaces ``old[:nold]`` by ``newq[:nnew]`` (its ``kind`` and new
-    diagonal ``d0``-``d1`` make its key, see the module notes).  It is admissible
-    if every new tet has positive volume.  A remembered (before, after) is used
-    as it is; otherwise, if ``bound``, a flip that surely cannot beat the round's
-    best (:func:`~trivsel.mesh.criteria._cannot_beat`) is left for a later round,
-    and any other is evaluated (``reuse``: the points of ``old`` are still in
-    ``S.wbuf`` from the previous evaluation) and remembered.  The flip improves
-    if it lowers the criterion sum by more than ``rel_tol * before + abs_tol``
-    (gains at rounding level could otherwise cycle); if it also beats
-    ``best_gain[0]``, it becomes the round's best: ``best_cfg`` = (kind, nold,
-    nnew), ``best_old``, ``best_new``.
+    ::
 
-    Compiled without reference counting and allocating nothing, as it runs for
-    every configuration of every round.
+        a-------r0              a-------r0
+        | \\      |              |      / |
+        |   \\    |     2->2     |    /   |     two coplanar hull faces: the planar
+        |     \\  |              |  /     |     quad (a, r0, b, r2) takes its other
+        r2------b              r2-------b     diagonal r0-r2 (the tets' apex r1 is below)
 
-    Returns
-    -------
-    (bool, int, bool)
-        Whether it became the best, the new count of stored evaluations, and
-        whether it was evaluated (its points are now in ``S.wbuf``).
-    """
-    opt = S.opt
-    if not _positive_at(S.ijk, S.points, opt.use_int, newq, nnew):
-        return False, hn, False
-    _config_key(S.tver, kind, d0, d1, old, nold, key)
+    A hull edge between two coplanar hull faces with two tets around it is
+    flipped to the other diagonal of the planar quad (a, r0, b, r2): the
+    :func:`~trivsel.mesh.flips.quads32` construction on the open ring (r0, r1,
+    r2).  Fills old[:2] and newq[:2].  Evaluations go to :func:`swap`'s memory
+    like the others (kind 3).  A function of its own, not a branch in
+    :func:`swap`'s loop: inline, the code of this rare case would weigh on the
+    loop that runs for every configuration."""
+    I_ = S.ijk
+    P_ = S.points
+    ui_ = S.opt.use_int
+    om = S.omark
+    k2 = _edge_ring_open_at(S.tets, S.nbr, t, a, b, old2, ring)
+    if k2 != 2 or _sign(I_, P_, ui_, a, b, ring[0], ring[2]) != 0:
+        return 0.0, hn
+    if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
+        return 0.0, hn  # evaluated from its smaller tet
+    quads32(a, b, ring, newq)
+    if not _positive_at(I_, P_, ui_, newq, 2):
+        return 0.0, hn
+    old[0] = old2[0]
+    old[1] = old2[1]
+    _config_key(S.tver, 3, -1, -1, old, 2, key)
     slot, found = _cache_slot(hkey, key, probes)
-    evaluated = False
     if found:
         before, after = hval[slot, 0], hval[slot, 1]
         S.ctr[C_MEMHITS] += 1
-    elif bound and _cannot_beat(opt.criterion, S.tsse, S.tmax, S.tcnt, old, nold, best_gain[0]):
-        return False, hn, False  # cannot beat this round's best: left for a later round
     else:
-        before, after = _evaluate_at(S, srt, old, nold, newq, nnew, opt.rel_tol, opt.abs_tol, reuse)
+        before, after = _evaluate_at(S, srt, old, 2, newq, 2, reltol, abstol, False)
         S.ctr[C_EVALS] += 1
         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
-        evaluated = True
     gain = before - after
-    if gain > opt.rel_tol * before + opt.abs_tol and gain > best_gain[0]:
-        best_gain[0] = gain
-        best_cfg[0] = kind
-        best_cfg[1] = nold
-        best_cfg[2] = nnew
-        _copy1(best_old, old, nold)
-        _copy2(best_new, newq, nnew)
-        return True, hn, evaluated
-    return False, hn, evaluated
+    if gain > reltol * before + abstol:
+        return gain, hn
+    return 0.0, hn
 
 
 @njit(cache=True)
@@ -212,41 +205,29 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
 
     O = the seed tets (the new ones) and, if ``with_neighbours``, their face
     neighbours (Definition 3).  In each round every configuration 1 (2-3 over each
-    interior face, 3-2 around each degree-3 edge; Fig. 2), configuration 2 (4-4
-    around each degree-4 edge, both other diagonals; Fig. 3) and, with
-    ``boundary_flips``, boundary 2-2 flip found in O is considered
-    (:func:`_consider`); the admissible alternative (all new tets strictly
-    positive) with the largest decrease of the criterion sum is applied if that
-    decrease exceeds ``rel_tol * before + abs_tol``.  With ``first_improving``
-    the first such flip is applied instead.  O is then updated with the new tets
-    and their neighbours and the search repeats until nothing improves, or for at
-    most ``max_rounds`` flips.  Each configuration is considered once per round,
-    from its smallest tet id in O.
-
-    Parameters
-    ----------
-    S : MeshState
-    seed : int64 array
-        The tets to start from, ``seed[:nseed]``.
-    nseed : int
-    with_neighbours : bool
-        Add the seed tets' face neighbours to O.
-    max_rounds : int
-        Flips at most (``UNLIMITED_ROUNDS``: until nothing improves).
-
-    Returns
-    -------
-    int
-        The number of flips made.
+    interior face, 3-2 around each degree-3 edge) and configuration 2 (4-4 around
+    each degree-4 edge, both other diagonals) found in O is evaluated; the admissible
+    alternative (all new tets strictly positive) with the largest decrease of the
+    criterion sum is applied if that decrease exceeds ``rel_tol * before + abs_tol``
+    (gains at rounding level could otherwise cycle).  With the ``first`` option the
+    first such improving flip is applied instead.  O is then updated with the new
+    tets and their neighbours and the search repeats until nothing improves.
+    Evaluations are remembered by configuration (see the module notes), for this
+    call or, with ``swap_memory="run"``, for the whole run.  At most
+    ``max_rounds`` flips are made.  Returns the number of flips made.
     """
     tets = S.tets
     nbr = S.nbr
+    I_ = S.ijk
+    P_ = S.points
     alive = S.alive
     ctr = S.ctr
     opt = S.opt
+    ui_ = opt.use_int
     om = S.omark
+    reltol = opt.rel_tol
+    abstol = opt.abs_tol
     first = opt.first_improving
-    bflip = opt.boundary_flips
     ctr[C_OSTAMP] += 1
     st = ctr[C_OSTAMP]
     O = np.empty(64 + 5 * nseed, np.int64)
@@ -263,11 +244,14 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
     old = np.empty(4, np.int64)
     ring = np.empty(5, np.int64)
     newq = np.empty((4, 4), np.int64)
-    # the round's best flip: its gain, (kind, old tets, new tets) and the tets themselves
-    best_gain = np.empty(1, np.float64)
-    best_cfg = np.empty(3, np.int64)
     best_old = np.empty(4, np.int64)
     best_new = np.empty((4, 4), np.int64)
+    bflip = opt.boundary_flips
+    tver = S.tver
+    tsse = S.tsse
+    tmax = S.tmax
+    tcnt = S.tcnt
+    crit = opt.criterion
     # evaluated configurations: keys and (before, after) (see the module notes)
     if opt.run_memory:
         hkey = S.mkey
@@ -292,8 +276,10 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
         if grow and hn < _CACHE_MAX and 2 * (hn + 16 * no) > hkey.shape[0]:
             hkey, hval = _cache_grow(hkey, hval, min(hn + 16 * no, _CACHE_MAX))
             probes = hkey.shape[0]
-        best_gain[0] = 0.0
-        best_cfg[0] = -1
+        best_gain = 0.0
+        best_kind = -1
+        best_nold = 0
+        best_nnew = 0
         done = False
         for oi in range(no):
             t = O[oi]
@@ -305,23 +291,48 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
                 if u < 0 or (om[u] == st and u < t):
                     continue
                 _config23_at(tets, nbr, t, i, old, newq)
-                better, hn, _ = _consider(S, hkey, hval, probes, hn, key, srt, best_gain, best_cfg, best_old,
-                                          best_new, FLIP23, -1, -1, old, 2, newq, 3, True, False)
-                if better and first:
-                    done = True
-                    break
+                if not _positive_at(I_, P_, ui_, newq, 3):
+                    continue
+                _config_key(tver, 0, -1, -1, old, 2, key)
+                slot, found = _cache_slot(hkey, key, probes)
+                if found:
+                    before, after = hval[slot, 0], hval[slot, 1]
+                    ctr[C_MEMHITS] += 1
+                elif _cannot_beat(crit, tsse, tmax, tcnt, old, 2, best_gain):
+                    continue  # cannot beat this round's best: left for a later round
+                else:
+                    before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol, False)
+                    ctr[C_EVALS] += 1
+                    hn = _cache_store(hkey, hval, hn, slot, key, before, after)
+                gain = before - after
+                if gain > reltol * before + abstol and gain > best_gain:
+                    best_gain = gain
+                    best_kind = 0
+                    best_nold = 2
+                    best_nnew = 3
+                    _copy1(best_old, old, 2)
+                    _copy2(best_new, newq, 3)
+                    if first:
+                        done = True
+                        break
             if done:
                 break
-            # configurations around edges: 3 -> 2 and 4 -> 4, and 2 -> 2 on the hull
+            # configurations around edges: 3 -> 2 and 4 -> 4
             for e in range(6):
                 a = tets[t, EDGES[e, 0]]
                 b = tets[t, EDGES[e, 1]]
                 k = _edge_ring(tets, nbr, om, st, t, a, b, old, ring)
                 if k == -1 and bflip:
-                    if _config22_at(S, om, st, t, a, b, old, old2, ring, newq):
-                        better, hn, _ = _consider(S, hkey, hval, probes, hn, key, srt, best_gain, best_cfg,
-                                                  best_old, best_new, FLIP22, -1, -1, old, 2, newq, 2, False, False)
-                        if better and first:
+                    g, hn = _try_flip22(S, srt, hkey, hval, hn, probes, key, t, a, b, old, old2, ring, newq, st,
+                                        reltol, abstol)
+                    if g > best_gain:
+                        best_gain = g
+                        best_kind = 3
+                        best_nold = 2
+                        best_nnew = 2
+                        _copy1(best_old, old, 2)
+                        _copy2(best_new, newq, 2)
+                        if first:
                             done = True
                             break
                     continue
@@ -334,36 +345,56 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
                         skip = True
                 if skip:
                     continue
-                gathered = False  # an evaluation of this ring left its points in S.wbuf
-                for alt in range(1 if k == 3 else 2):
+                nalt = 1 if k == 3 else 2
+                gathered = False  # the first diagonal's evaluation left this ring's points in WBUF
+                for alt in range(nalt):
                     if k == 3:
                         quads32(a, b, ring, newq)
-                        better, hn, ev = _consider(S, hkey, hval, probes, hn, key, srt, best_gain, best_cfg,
-                                                   best_old, best_new, FLIP32, -1, -1, old, 3, newq, 2, True,
-                                                   gathered)
+                        nn = 2
                     else:
                         quads44(a, b, ring, alt, newq)
-                        better, hn, ev = _consider(S, hkey, hval, probes, hn, key, srt, best_gain, best_cfg,
-                                                   best_old, best_new, FLIP44, ring[alt], ring[(alt + 2) % 4],
-                                                   old, 4, newq, 4, True, gathered)
-                    gathered = gathered or ev
-                    if better and first:
-                        done = True
-                        break
+                        nn = 4
+                    if not _positive_at(I_, P_, ui_, newq, nn):
+                        continue
+                    if k == 3:
+                        _config_key(tver, 1, -1, -1, old, 3, key)
+                    else:
+                        _config_key(tver, 2, ring[alt], ring[(alt + 2) % 4], old, 4, key)
+                    slot, found = _cache_slot(hkey, key, probes)
+                    if found:
+                        before, after = hval[slot, 0], hval[slot, 1]
+                        ctr[C_MEMHITS] += 1
+                    elif _cannot_beat(crit, tsse, tmax, tcnt, old, k, best_gain):
+                        continue  # cannot beat this round's best (see above)
+                    else:
+                        before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol, gathered)
+                        ctr[C_EVALS] += 1
+                        gathered = True
+                        hn = _cache_store(hkey, hval, hn, slot, key, before, after)
+                    gain = before - after
+                    if gain > reltol * before + abstol and gain > best_gain:
+                        best_gain = gain
+                        best_kind = 1 if k == 3 else 2
+                        best_nold = k
+                        best_nnew = nn
+                        _copy1(best_old, old, k)
+                        _copy2(best_new, newq, nn)
+                        if first:
+                            done = True
+                            break
                 if done:
                     break
             if done:
                 break
-        kind = best_cfg[0]
-        if kind < 0:
+        if best_kind < 0:
             break
-        ids = _replace(S, best_old, best_cfg[1], best_new, best_cfg[2], kind == FLIP22)
+        ids = _replace(S, best_old, best_nold, best_new, best_nnew, best_kind == 3)
         if ctr[C_ERROR] != 0:
             return nflips
-        if kind == FLIP22:
+        if best_kind == 3:
             ctr[C_FLIP22] += 1
         else:
-            ctr[C_FLIP23 + kind] += 1
+            ctr[C_FLIP23 + best_kind] += 1
         nflips += 1
         O = _with_room(O, no, 5 * ids.shape[0])
         for k in range(ids.shape[0]):
