@@ -56,6 +56,7 @@ def helper_signatures(S):
         (flips.quads32, (i8, i8, v8, m8)),
         (flips.quads44, (i8, i8, v8, i8, m8)),
         (flips._config23_at, (m4, m4, i8, i8, v8, m8)),
+        (flips._config22_at, (st, v8, i8, i8, i8, i8, v8, v8, v8, m8)),
         (criteria._cannot_beat, (i8,) + tuple(typeof(a) for a in (S.tsse, S.tmax, S.tcnt)) + (v8, i8, f8)),
         (criteria._evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8, b1)),
         (criteria._evaluate, (st, v8, i8, m8, i8, f8, f8)),
@@ -93,7 +94,7 @@ def pin_signatures(S):
 # The pinned helpers that only swapping uses (part 0 of compile_kernels; _evaluate is
 # its wrapper for TetMesh)
 _SWAP_ONLY = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.quads32, flips.quads44,
-              flips._config23_at, criteria._cannot_beat, criteria._evaluate_at,
+              flips._config23_at, flips._config22_at, criteria._cannot_beat, criteria._evaluate_at,
               criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store)
 _LEAVES = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
            storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)

@@ -17,8 +17,11 @@ from __future__ import annotations
 
 from numba import njit
 
-from .geometry import EDGE_EVEN, FACE_IN
+from .geometry import EDGE_EVEN, FACE_IN, _sign
 from .storage import _other_index
+
+# the kinds of flips (also the kinds of swap's memory keys and the order of the flip counters)
+FLIP23, FLIP32, FLIP44, FLIP22 = 0, 1, 2, 3
 
 
 @njit(cache=True)
@@ -224,3 +227,32 @@ def quads44(a, b, ring, alt, newq):
     newq[2, 0], newq[2, 1], newq[2, 2], newq[2, 3] = c1, c2, c3, b
     newq[3, 0], newq[3, 1], newq[3, 2], newq[3, 3] = c3, c4, c1, b
 
+
+@njit(cache=True, _nrt=False)
+def _config22_at(S, om, st, t, a, b, old, old2, ring, newq):
+    """The boundary 2-2 flip of hull edge (a, b) of tet t, if it has one.
+
+    ::
+
+        a-------r0              a-------r0
+        | \\      |              |      / |
+        |   \\    |     2->2     |    /   |     two coplanar hull faces: the planar
+        |     \\  |              |  /     |     quad (a, r0, b, r2) takes its other
+        r2------b              r2-------b     diagonal r0-r2 (the tets' apex r1 is below)
+
+    Two tets around the edge, whose hull faces (a, b, r0) and (a, b, r2) are
+    coplanar: they are replaced by the two tets on the quad's other diagonal, the
+    :func:`quads32` construction on the open ring (r0, r1, r2).  Fills old[:2] and
+    newq[:2] and returns True, or returns False if the edge has no such
+    configuration or it is to be considered from a smaller tet id in O (marked
+    ``st`` in ``om``).  ``old2`` is room for the ring walk.
+    """
+    k2 = _edge_ring_open_at(S.tets, S.nbr, t, a, b, old2, ring)
+    if k2 != 2 or _sign(S.ijk, S.points, S.opt.use_int, a, b, ring[0], ring[2]) != 0:
+        return False
+    if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
+        return False  # considered from its smaller tet
+    quads32(a, b, ring, newq)
+    old[0] = old2[0]
+    old[1] = old2[1]
+    return True

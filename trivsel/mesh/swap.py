@@ -46,8 +46,8 @@ import numpy as np
 from numba import njit
 
 from .criteria import _cannot_beat, _evaluate_at
-from .flips import _config23_at, _edge_ring, _edge_ring_open_at, quads32, quads44
-from .geometry import EDGES, _positive_at, _sign
+from .flips import FLIP22, FLIP23, FLIP32, FLIP44, _config22_at, _config23_at, _edge_ring, quads32, quads44
+from .geometry import EDGES, _positive_at
 from .state import C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_MEMHITS, C_OSTAMP, C_ROUNDCAP
 from .storage import _copy1, _copy2, _replace
 
@@ -150,71 +150,37 @@ def _cache_store(hkey, hval, hn, slot, key, before, after):
     return hn + 1
 
 
-@njit(cache=True, _nrt=False)
-def _try_flip22(S, srt, hkey, hval, hn, probes, key, t, a, b, old, old2, ring, newq, st, reltol, abstol):
-    """(gain, count of the evaluation memory) of the boundary 2-2 flip of hull edge
-    (a, b); the gain is 0 if the flip is not admissible or not improving enough.
-
-    ::
-
-        a-------r0              a-------r0
-        | \\      |              |      / |
-        |   \\    |     2->2     |    /   |     two coplanar hull faces: the planar
-        |     \\  |              |  /     |     quad (a, r0, b, r2) takes its other
-        r2------b              r2-------b     diagonal r0-r2 (the tets' apex r1 is below)
-
-    A hull edge between two coplanar hull faces with two tets around it is
-    flipped to the other diagonal of the planar quad (a, r0, b, r2): the
-    :func:`~trivsel.mesh.flips.quads32` construction on the open ring (r0, r1,
-    r2).  Fills old[:2] and newq[:2].  Evaluations go to :func:`swap`'s memory
-    like the others (kind 3).  A function of its own, not a branch in
-    :func:`swap`'s loop: inline, the code of this rare case would weigh on the
-    loop that runs for every configuration."""
-    I_ = S.ijk
-    P_ = S.points
-    ui_ = S.opt.use_int
-    om = S.omark
-    k2 = _edge_ring_open_at(S.tets, S.nbr, t, a, b, old2, ring)
-    if k2 != 2 or _sign(I_, P_, ui_, a, b, ring[0], ring[2]) != 0:
-        return 0.0, hn
-    if (old2[0] < t and om[old2[0]] == st) or (old2[1] < t and om[old2[1]] == st):
-        return 0.0, hn  # evaluated from its smaller tet
-    quads32(a, b, ring, newq)
-    if not _positive_at(I_, P_, ui_, newq, 2):
-        return 0.0, hn
-    old[0] = old2[0]
-    old[1] = old2[1]
-    _config_key(S.tver, 3, -1, -1, old, 2, key)
-    slot, found = _cache_slot(hkey, key, probes)
-    if found:
-        before, after = hval[slot, 0], hval[slot, 1]
-        S.ctr[C_MEMHITS] += 1
-    else:
-        before, after = _evaluate_at(S, srt, old, 2, newq, 2, reltol, abstol, False)
-        S.ctr[C_EVALS] += 1
-        hn = _cache_store(hkey, hval, hn, slot, key, before, after)
-    gain = before - after
-    if gain > reltol * before + abstol:
-        return gain, hn
-    return 0.0, hn
-
-
 @njit(cache=True)
 def swap(S, seed, nseed, with_neighbours, max_rounds):
     """Data-dependent swapping after an insertion (section 4, steps i-iv).
 
     O = the seed tets (the new ones) and, if ``with_neighbours``, their face
     neighbours (Definition 3).  In each round every configuration 1 (2-3 over each
-    interior face, 3-2 around each degree-3 edge) and configuration 2 (4-4 around
-    each degree-4 edge, both other diagonals) found in O is evaluated; the admissible
-    alternative (all new tets strictly positive) with the largest decrease of the
-    criterion sum is applied if that decrease exceeds ``rel_tol * before + abs_tol``
-    (gains at rounding level could otherwise cycle).  With the ``first`` option the
-    first such improving flip is applied instead.  O is then updated with the new
-    tets and their neighbours and the search repeats until nothing improves.
-    Evaluations are remembered by configuration (see the module notes), for this
-    call or, with ``swap_memory="run"``, for the whole run.  At most
-    ``max_rounds`` flips are made.  Returns the number of flips made.
+    interior face, 3-2 around each degree-3 edge; Fig. 2), configuration 2 (4-4
+    around each degree-4 edge, both other diagonals; Fig. 3) and, with
+    ``boundary_flips``, boundary 2-2 flip found in O is considered; the admissible alternative (all new tets strictly
+    positive) with the largest decrease of the criterion sum is applied if that
+    decrease exceeds ``rel_tol * before + abs_tol``.  With ``first_improving``
+    the first such flip is applied instead.  O is then updated with the new tets
+    and their neighbours and the search repeats until nothing improves, or for at
+    most ``max_rounds`` flips.  Each configuration is considered once per round,
+    from its smallest tet id in O.
+
+    Parameters
+    ----------
+    S : MeshState
+    seed : int64 array
+        The tets to start from, ``seed[:nseed]``.
+    nseed : int
+    with_neighbours : bool
+        Add the seed tets' face neighbours to O.
+    max_rounds : int
+        Flips at most (``UNLIMITED_ROUNDS``: until nothing improves).
+
+    Returns
+    -------
+    int
+        The number of flips made.
     """
     tets = S.tets
     nbr = S.nbr
@@ -228,6 +194,12 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
     reltol = opt.rel_tol
     abstol = opt.abs_tol
     first = opt.first_improving
+    bflip = opt.boundary_flips
+    tver = S.tver
+    tsse = S.tsse
+    tmax = S.tmax
+    tcnt = S.tcnt
+    crit = opt.criterion
     ctr[C_OSTAMP] += 1
     st = ctr[C_OSTAMP]
     O = np.empty(64 + 5 * nseed, np.int64)
@@ -246,12 +218,6 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
     newq = np.empty((4, 4), np.int64)
     best_old = np.empty(4, np.int64)
     best_new = np.empty((4, 4), np.int64)
-    bflip = opt.boundary_flips
-    tver = S.tver
-    tsse = S.tsse
-    tmax = S.tmax
-    tcnt = S.tcnt
-    crit = opt.criterion
     # evaluated configurations: keys and (before, after) (see the module notes)
     if opt.run_memory:
         hkey = S.mkey
@@ -285,100 +251,77 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
             t = O[oi]
             if not alive[t] or om[t] != st:
                 continue
-            # configuration 1 as two tets: 2 -> 3 over each interior face
-            for i in range(4):
-                u = nbr[t, i]
-                if u < 0 or (om[u] == st and u < t):
-                    continue
-                _config23_at(tets, nbr, t, i, old, newq)
-                if not _positive_at(I_, P_, ui_, newq, 3):
-                    continue
-                _config_key(tver, 0, -1, -1, old, 2, key)
-                slot, found = _cache_slot(hkey, key, probes)
-                if found:
-                    before, after = hval[slot, 0], hval[slot, 1]
-                    ctr[C_MEMHITS] += 1
-                elif _cannot_beat(crit, tsse, tmax, tcnt, old, 2, best_gain):
-                    continue  # cannot beat this round's best: left for a later round
-                else:
-                    before, after = _evaluate_at(S, srt, old, 2, newq, 3, reltol, abstol, False)
-                    ctr[C_EVALS] += 1
-                    hn = _cache_store(hkey, hval, hn, slot, key, before, after)
-                gain = before - after
-                if gain > reltol * before + abstol and gain > best_gain:
-                    best_gain = gain
-                    best_kind = 0
-                    best_nold = 2
-                    best_nnew = 3
-                    _copy1(best_old, old, 2)
-                    _copy2(best_new, newq, 3)
-                    if first:
-                        done = True
-                        break
-            if done:
-                break
-            # configurations around edges: 3 -> 2 and 4 -> 4
-            for e in range(6):
-                a = tets[t, EDGES[e, 0]]
-                b = tets[t, EDGES[e, 1]]
-                k = _edge_ring(tets, nbr, om, st, t, a, b, old, ring)
-                if k == -1 and bflip:
-                    g, hn = _try_flip22(S, srt, hkey, hval, hn, probes, key, t, a, b, old, old2, ring, newq, st,
-                                        reltol, abstol)
-                    if g > best_gain:
-                        best_gain = g
-                        best_kind = 3
-                        best_nold = 2
-                        best_nnew = 2
-                        _copy1(best_old, old, 2)
-                        _copy2(best_new, newq, 2)
-                        if first:
-                            done = True
-                            break
-                    continue
-                if k != 3 and k != 4:
-                    continue
-                # evaluate each edge once: from its smallest tet id that is in O
-                skip = False
-                for j in range(k):
-                    if old[j] < t and om[old[j]] == st and alive[old[j]]:
-                        skip = True
-                if skip:
-                    continue
-                nalt = 1 if k == 3 else 2
-                gathered = False  # the first diagonal's evaluation left this ring's points in WBUF
-                for alt in range(nalt):
-                    if k == 3:
-                        quads32(a, b, ring, newq)
-                        nn = 2
-                    else:
-                        quads44(a, b, ring, alt, newq)
-                        nn = 4
-                    if not _positive_at(I_, P_, ui_, newq, nn):
+            # the configurations of t, each from its smallest tet in O: c < 4 the 2-3 flip
+            # over face c; c >= 4 those around edge c - 4 (2-2 on the hull, 3-2 around a
+            # degree-3 edge, 4-4 with either new diagonal around a degree-4 edge)
+            for c in range(10):
+                a = -1
+                b = -1
+                nalt = 1
+                if c < 4:
+                    u = nbr[t, c]
+                    if u < 0 or (om[u] == st and u < t):
                         continue
-                    if k == 3:
-                        _config_key(tver, 1, -1, -1, old, 3, key)
+                    _config23_at(tets, nbr, t, c, old, newq)
+                    kind = FLIP23
+                    nold = 2
+                    nnew = 3
+                else:
+                    a = tets[t, EDGES[c - 4, 0]]
+                    b = tets[t, EDGES[c - 4, 1]]
+                    k = _edge_ring(tets, nbr, om, st, t, a, b, old, ring)
+                    if k == -1:
+                        if not bflip or not _config22_at(S, om, st, t, a, b, old, old2, ring, newq):
+                            continue
+                        kind = FLIP22
+                        nold = 2
+                        nnew = 2
+                    elif k == 3 or k == 4:
+                        skip = False
+                        for j in range(k):
+                            if old[j] < t and om[old[j]] == st and alive[old[j]]:
+                                skip = True
+                        if skip:
+                            continue
+                        kind = FLIP32 if k == 3 else FLIP44
+                        nold = k
+                        nnew = 2 if k == 3 else 4
+                        nalt = 1 if k == 3 else 2
                     else:
-                        _config_key(tver, 2, ring[alt], ring[(alt + 2) % 4], old, 4, key)
+                        continue
+                gathered = False  # an evaluation of these old tets left their points in S.wbuf
+                for alt in range(nalt):
+                    d0 = -1
+                    d1 = -1
+                    if kind == FLIP32:
+                        quads32(a, b, ring, newq)
+                    elif kind == FLIP44:
+                        quads44(a, b, ring, alt, newq)
+                        d0 = ring[alt]
+                        d1 = ring[(alt + 2) % 4]
+                    # the one place where a flip is checked, remembered or evaluated, and kept
+                    if not _positive_at(I_, P_, ui_, newq, nnew):
+                        continue
+                    _config_key(tver, kind, d0, d1, old, nold, key)
                     slot, found = _cache_slot(hkey, key, probes)
                     if found:
                         before, after = hval[slot, 0], hval[slot, 1]
                         ctr[C_MEMHITS] += 1
-                    elif _cannot_beat(crit, tsse, tmax, tcnt, old, k, best_gain):
-                        continue  # cannot beat this round's best (see above)
+                    elif kind != FLIP22 and _cannot_beat(crit, tsse, tmax, tcnt, old, nold, best_gain):
+                        continue  # cannot beat this round's best: left for a later round
                     else:
-                        before, after = _evaluate_at(S, srt, old, k, newq, nn, reltol, abstol, gathered)
+                        before, after = _evaluate_at(S, srt, old, nold, newq, nnew, reltol, abstol, gathered)
                         ctr[C_EVALS] += 1
                         gathered = True
                         hn = _cache_store(hkey, hval, hn, slot, key, before, after)
                     gain = before - after
                     if gain > reltol * before + abstol and gain > best_gain:
                         best_gain = gain
-                        best_kind = 1 if k == 3 else 2
-                        best_nold = k
-                        best_nnew = nn
-                        _copy1(best_old, old, k)
-                        _copy2(best_new, newq, nn)
+                        best_kind = kind
+                        best_nold = nold
+                        best_nnew = nnew
+                        _copy1(best_old, old, nold)
+                        _copy2(best_new, newq, nnew)
                         if first:
                             done = True
                             break
@@ -388,10 +331,10 @@ def swap(S, seed, nseed, with_neighbours, max_rounds):
                 break
         if best_kind < 0:
             break
-        ids = _replace(S, best_old, best_nold, best_new, best_nnew, best_kind == 3)
+        ids = _replace(S, best_old, best_nold, best_new, best_nnew, best_kind == FLIP22)
         if ctr[C_ERROR] != 0:
             return nflips
-        if best_kind == 3:
+        if best_kind == FLIP22:
             ctr[C_FLIP22] += 1
         else:
             ctr[C_FLIP23 + best_kind] += 1
