@@ -6,8 +6,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from trivsel.check import MeshInvalid, check_mesh
-from trivsel.mesh import TetMesh, _orient
+from trivsel.mesh import MeshInvalid, TetMesh, check_mesh
+from trivsel.mesh.geometry import _orient
 from trivsel.triangulation import box_tetrahedra, delaunay_tetrahedra, hull_triangles, orient3d_float
 
 FIXTURES = Path(__file__).parent / "fixtures"
@@ -25,7 +25,7 @@ def _mesh(points, tets, values=None, exact=True, hull_volume=None, **opt):
 
 
 def _volume(tm):
-    return orient3d_float(tm.S[0], tm.tetrahedra()).sum() / 6
+    return orient3d_float(tm.S.points, tm.tetrahedra()).sum() / 6
 
 
 # A positively oriented tet and points placed in its interior, on a face, on an edge.
@@ -109,7 +109,7 @@ def test_flip44_to_either_diagonal_and_back(exact):
         new_diag = [e for e in [(2, 4), (3, 5)] if e in edges]
         assert len(new_diag) == 1
         a, b = new_diag[0]
-        t2 = next(x for x in tm2.live_ids() if a in tm2.S[3][x] and b in tm2.S[3][x])
+        t2 = next(x for x in tm2.live_ids() if a in tm2.S.tets[x] and b in tm2.S.tets[x])
         assert tm2.flip_edge(t2, a, b, alt=0, force=True) is not None
         check_mesh(tm2)
 
@@ -122,7 +122,7 @@ def test_flip23_then_flip32_restores_the_pair(exact):
     tm = _mesh(pts, tets, exact=exact)
     vol = _volume(tm)
     t = tm.live_ids()[0]
-    i = int(np.flatnonzero(tm.S[3][t] == 3)[0])  # face opposite d
+    i = int(np.flatnonzero(tm.S.tets[t] == 3)[0])  # face opposite d
     ids = tm.flip23(t, i, force=True)
     assert ids is not None and len(ids) == 3
     check_mesh(tm)
@@ -140,7 +140,7 @@ def test_flip23_not_admissible_when_segment_misses_the_face(exact):
     tets = [[0, 1, 2, 3], [0, 2, 1, 4]]
     tm = _mesh(pts, tets, exact=exact, hull_volume=48.0)  # the pair's union is not convex
     t = tm.live_ids()[0]
-    i = int(np.flatnonzero(tm.S[3][t] == 3)[0])
+    i = int(np.flatnonzero(tm.S.tets[t] == 3)[0])
     assert tm.flip23(t, i, force=True) is None
     check_mesh(tm, hull_volume=48.0)
 
@@ -184,7 +184,7 @@ def test_checker_detects_a_broken_link():
     pts, tets = _octahedron()
     tm = _mesh(pts, tets)
     t = tm.live_ids()[0]
-    tm.S[4][t, 2] = -1  # break a neighbour link
+    tm.S.nbr[t, 2] = -1  # break a neighbour link
     with pytest.raises(MeshInvalid):
         check_mesh(tm)
 
@@ -193,7 +193,7 @@ def test_checker_detects_an_inverted_tet():
     pts, tets = _octahedron()
     tm = _mesh(pts, tets)
     t = tm.live_ids()[0]
-    tm.S[3][t, [0, 1]] = tm.S[3][t, [1, 0]]
+    tm.S.tets[t, [0, 1]] = tm.S.tets[t, [1, 0]]
     with pytest.raises(MeshInvalid):
         check_mesh(tm)
 
@@ -292,7 +292,7 @@ def test_orientation_predicate_int_and_float_agree_on_grid_points():
 def test_face_planes_give_the_exact_sub_volumes_of_eq_13():
     """The integer face planes of _tet_data evaluate to orient3d with p in place of
     each vertex, exactly (they are the weights of eq. 13 on grids)."""
-    from trivsel.mesh import _tet_data
+    from trivsel.mesh.geometry import _tet_data
     from trivsel.predicates import orient3d_int
 
     rng = np.random.default_rng(11)
@@ -313,7 +313,7 @@ def test_face_planes_give_the_exact_sub_volumes_of_eq_13():
 
 def _random_mesh_configs(criterion, seed=3):
     """A Delaunay mesh over random points with random values, and its 2-3 configurations."""
-    from trivsel.mesh import config23
+    from trivsel.mesh.flips import config23
 
     rng = np.random.default_rng(seed)
     pts = rng.random((40, 3))
@@ -341,7 +341,7 @@ def test_evaluation_does_not_depend_on_the_order_of_the_old_tets(criterion):
 
 @pytest.mark.parametrize("criterion", ["rms", "max", "sse"])
 def test_early_stopped_evaluation_decides_like_the_full_one(criterion):
-    from trivsel.mesh import _evaluate
+    from trivsel.mesh.criteria import _evaluate
 
     tm, configs = _random_mesh_configs(criterion)
     stopped = 0
@@ -361,7 +361,7 @@ def test_early_stopped_evaluation_decides_like_the_full_one(criterion):
 
 
 def test_config_keys_are_distinct_and_do_not_depend_on_the_order_of_the_tets():
-    from trivsel.mesh import _KEYLEN, _config_key
+    from trivsel.mesh.swap import _KEYLEN, _config_key
 
     tver = np.array([0, 3, 1, 2**31 - 1, 7, 0, 0, 5], np.int64)
     keys = set()
@@ -390,7 +390,7 @@ def test_config_keys_are_distinct_and_do_not_depend_on_the_order_of_the_tets():
 def test_bounded_memory_table_forgets_but_never_returns_a_wrong_value():
     # the run-long memory (swap_memory="run") is a fixed table: a key looks at a few
     # slots and may overwrite one; a lookup finds a key only with its own value
-    from trivsel.mesh import _KEYLEN, _cache_slot, _cache_store
+    from trivsel.mesh.swap import _KEYLEN, _cache_slot, _cache_store
 
     rng = np.random.default_rng(5)
     hkey = np.full((64, _KEYLEN), -1, np.int64)

@@ -13,7 +13,7 @@ import pytest
 import yaml
 
 import trivsel
-from trivsel.check import check_mesh
+from trivsel.mesh import check_mesh
 from trivsel.data import sample_grid, scattered
 from trivsel.mesh import TetMesh
 from trivsel.study.comparison import COLUMNS, METHODS, compare_methods, methods_figure, methods_markdown, methods_table, \

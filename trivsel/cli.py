@@ -60,16 +60,16 @@ def build_parser():
     add_arguments(r.add_argument_group("method options (trivsel.Options; the defaults reproduce Table 1)"))
 
     k = sub.add_parser("compile", help="compile the numba kernels into the on-disk cache (once per machine)",
-                       description="A reduction compiles its kernels on first use (about 21 s once; they load "
+                       description="A reduction compiles its kernels on first use (once; they load "
                                    "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
                                    "(swapping; insertion) in two processes side by side, as the workflow's "
-                                   "kernels rule does; without --part, everything.")
+                                   "kernels rule does, then --part 2 the drivers of both methods; without "
+                                   "--part, everything.")
     from .methods import METHODS
 
     k.add_argument("--method", default="paper", choices=list(METHODS))
     k.add_argument("--part", type=int, choices=[0, 1, 2],
-                   help="0: swapping, 1: insertion (side by side), 2: the drivers once both are cached "
-                        "(default: everything)")
+                   help="one part only: 0 swapping, 1 insertion, 2 the drivers (default: all)")
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
                        description="Cells are matched on their key columns and compared with "
@@ -139,7 +139,7 @@ def _cmd_compile(a):
 
     t0 = time.perf_counter()
     n = compile_kernels(a.method, a.part)
-    part = "both halves and the driver" if a.part is None else f"part {a.part}"
+    part = "all parts" if a.part is None else f"part {a.part}"
     print(f"compiled or loaded {n} kernel signatures ({a.method}, {part}) in {time.perf_counter() - t0:.1f} s")
     return 0
 

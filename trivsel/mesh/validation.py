@@ -1,6 +1,6 @@
 """Mesh-validity checker: call it after any operation (tests do, after every one).
 
-Checks, on a :class:`trivsel.mesh.TetMesh`:
+Checks, on a :class:`~trivsel.mesh.tetmesh.TetMesh`:
 
 1. every live tet has strictly positive volume (exact predicate);
 2. the tets' volumes add up to the volume of the convex hull of the points;
@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import ConvexHull
 
-from . import mesh as _m
-from .triangulation import orient3d_float
+from ..triangulation import orient3d_float
+from .geometry import _locate_in, _orient
 
 __all__ = ["check_mesh", "MeshInvalid"]
 
@@ -31,14 +31,13 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
     """Raise :class:`MeshInvalid` unless ``tm`` satisfies every invariant listed above."""
     S = tm.S
     ids = tm.live_ids()
-    tets = S[_m._TETS][ids].astype(np.int64)
-    nbr = S[_m._NBR][ids].astype(np.int64)
-    P = S[_m._P]
+    tets = S.tets[ids].astype(np.int64)
+    P = S.points
     if len(ids) == 0:
         raise MeshInvalid("mesh has no tetrahedra")
     # 1. positive volumes with the exact predicate
     for k, t in enumerate(ids):
-        if _m._orient(S, *tets[k]) <= 0:
+        if _orient(S, *tets[k]) <= 0:
             raise MeshInvalid(f"tet {t} {tets[k].tolist()} is not positively oriented")
     # 2. volume
     vol = orient3d_float(P, tets).sum() / 6.0
@@ -47,8 +46,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
     if abs(vol - hull_volume) > rtol * max(hull_volume, 1e-300) * 10:
         raise MeshInvalid(f"total volume {vol!r} differs from the hull volume {hull_volume!r}")
     # 3. faces and links
-    alive = S[_m._ALIVE]
-    pos = {int(t): k for k, t in enumerate(ids)}
+    alive = S.alive
     faces = {}
     for k, t in enumerate(ids):
         for i in range(4):
@@ -58,7 +56,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
         if len(owners) > 2:
             raise MeshInvalid(f"face {key} belongs to {len(owners)} tets {owners}")
         for (t, i) in owners:
-            u = int(S[_m._NBR][t, i])
+            u = int(S.nbr[t, i])
             if len(owners) == 1:
                 if u != -1:
                     raise MeshInvalid(f"hull face {key} of tet {t} links to {u}")
@@ -70,7 +68,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
                     raise MeshInvalid(f"tet {t} links to dead tet {u}")
     # hull faces must lie on the convex hull (no internal holes)
     # 4. vertices
-    isvert = S[_m._ISVERT].astype(bool)
+    isvert = S.isvert.astype(bool)
     used = np.zeros(len(isvert), bool)
     used[np.unique(tets)] = True
     if np.any(used != isvert):
@@ -78,7 +76,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
         raise MeshInvalid(f"selected points and tet vertices disagree at points {bad.tolist()}")
     # 5. coverage and continuity
     out, worst = tm.residuals()
-    F = S[_m._F]
+    F = S.values
     scale = max(float(np.abs(F).max()), 1e-300)
     if worst > 1e-9 * scale:
         raise MeshInvalid(f"interpolant is discontinuous: two tets disagree by {worst:.3e} at a point")
@@ -91,7 +89,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
                 raise MeshInvalid(f"tet {t} lists a point twice")
             counts[b] += 1
             for p in b:
-                inside, nz, val = _m._locate_in(S, *tets[k], int(p))
+                inside, nz, val = _locate_in(S, *tets[k], int(p))
                 if not inside:
                     raise MeshInvalid(f"point {p} is in the bucket of tet {t} but not inside it")
         if np.any(counts == 0):
@@ -101,7 +99,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
         rng = np.random.default_rng(0)
         sample = rng.choice(len(F), size=min(len(F), 64), replace=False)
         for p in sample:
-            n_in = sum(_m._locate_in(S, *tets[k], int(p))[0] for k in range(len(ids)))
+            n_in = sum(_locate_in(S, *tets[k], int(p))[0] for k in range(len(ids)))
             if n_in != counts[p]:
                 raise MeshInvalid(f"point {p} lies in {n_in} tets but is in {counts[p]} buckets")
     return True

@@ -1,0 +1,170 @@
+"""Compilation of the numba kernels: one pinned signature per helper, and :func:`compile_kernels`.
+
+Numba increments and decrements the reference count of every array an ordinary
+compiled function receives (each array of the state) and of every array variable
+reassigned in a loop.  So the helpers of the swap loop (the ``*_at`` variants)
+allocate nothing and are compiled with ``_nrt=False``: no reference counting at
+all, whether they receive arrays or the whole state; and nothing in
+:func:`~trivsel.mesh.swap.swap`'s inner loops rebinds an array.
+
+Without pinning, numba compiles a helper once per combination of argument types
+it meets while typing its callers: int32 read from ``tets`` against int64 loop
+indices, ``Literal[int](2)`` against ``int64``, ``Literal[bool](True)`` against
+``bool``, each a full copy of the helper and of everything it calls.  With one
+pinned signature (int64 indices, :func:`pin_signatures`), numba converts the
+arguments at the call instead.  Pinning runs in
+:func:`~trivsel.mesh.state.make_state` (once per state type), so ``import
+trivsel`` stays cheap; each signature comes from the on-disk cache after the
+first run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from . import criteria, drivers, flips, geometry, greedy, heap, insertion, storage, swap
+from .state import make_state
+
+_PINNED = set()  # state types the helpers are compiled for
+
+
+def helper_signatures(S):
+    """The internal helpers and their one signature (int64 indices), callees before
+    callers, for the state type of ``S``."""
+    from numba import typeof, types as nt
+
+    st = typeof(S)
+    i8, b1, f8 = nt.int64, nt.boolean, nt.float64
+    v8, m8, m4 = nt.int64[::1], nt.int64[:, ::1], nt.int32[:, ::1]
+    f82 = nt.float64[:, ::1]
+    return [
+        (geometry._sign, (m8, f82, b1, i8, i8, i8, i8)),
+        (geometry._vol, (m8, f82, b1, i8, i8, i8, i8)),
+        (criteria._crit, (i8, f8, f8, i8)),
+        (storage._other_index, (m4, i8, i8, i8, i8)),
+        (swap._push_unique, (v8, i8, i8, v8, i8)),
+        (swap._with_room, (v8, i8, i8)),
+        (storage._copy1, (v8, v8, i8)),
+        (storage._copy2, (m8, m8, i8)),
+        (storage._sort_into, (v8, i8, v8)),
+        (storage._gather_at, tuple(typeof(a) for a in (S.ctr, S.mark, S.wbuf, S.pool, S.bstart, S.blen))
+         + (v8, i8)),
+        (storage._gather, (st, v8, i8)),
+        (geometry._positive_at, (m8, f82, b1, m8, i8)),
+        (geometry._positive, (st, m8, i8)),
+        (flips._edge_opposite, (m4, i8, i8, i8)),
+        (flips.quads32, (i8, i8, v8, m8)),
+        (flips.quads44, (i8, i8, v8, i8, m8)),
+        (flips._config23_at, (m4, m4, i8, i8, v8, m8)),
+        (flips._config22_at, (st, v8, i8, i8, i8, i8, v8, v8, v8, m8)),
+        (criteria._cannot_beat, (i8,) + tuple(typeof(a) for a in (S.tsse, S.tmax, S.tcnt)) + (v8, i8, f8)),
+        (criteria._evaluate_at, (st, v8, v8, i8, m8, i8, f8, f8, b1)),
+        (criteria._evaluate, (st, v8, i8, m8, i8, f8, f8)),
+        (heap._set_best, (st, i8, i8, f8)),
+        (storage._replace, (st, v8, i8, m8, i8, b1)),
+        (swap._config_key, (v8, i8, i8, i8, v8, i8, v8)),
+        (swap._cache_slot, (m8, v8, i8)),
+        (swap._cache_store, (m8, f82, i8, i8, v8, f8, f8)),
+        (swap.swap, (st, v8, i8, b1, i8)),  # last: it calls the helpers above
+    ]
+
+
+def _pin(fn, sig):
+    """Compile (or load from the cache) ``fn`` for ``sig`` and forbid other variants."""
+    fn.disable_compile(False)
+    fn.compile(sig)
+    fn.disable_compile(True)
+
+
+def pin_signatures(S):
+    """Compile each internal helper for its one argument signature (see the module
+    notes) and forbid further variants; once per state type."""
+    from numba import typeof
+
+    if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: plain Python functions
+        return
+    st = typeof(S)
+    if st in _PINNED:
+        return
+    for fn, sig in helper_signatures(S):
+        _pin(fn, sig)
+    _PINNED.add(st)
+
+
+# The pinned helpers that only swapping uses (part 0 of compile_kernels; _evaluate is
+# its wrapper for TetMesh)
+_SWAP_ONLY = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.quads32, flips.quads44,
+              flips._config23_at, flips._config22_at, criteria._cannot_beat, criteria._evaluate_at,
+              criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store)
+_LEAVES = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
+           storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)
+PARTS = (0, 1, 2)
+
+
+def compile_kernels(method="paper", part=None):
+    """Compile the numba kernels of a reduction into numba's on-disk cache.
+
+    A reduction compiles its kernels on first use anyway (once per machine; they
+    load from the cache in ``__pycache__`` afterwards).  This splits the work into
+    parts that share little, so that two processes fill the cache side by side:
+    ``trivsel compile --part 0`` and ``--part 1`` at once, then ``--part 2``,
+    which finds everything but the drivers in the cache.
+
+    Parameters
+    ----------
+    method : {"paper", "greedy"}
+        The method the kernels are for.  Both methods run the same kernels up to
+        the driver, and parts 2 and None compile both drivers, so it only is
+        checked.
+    part : {None, 0, 1, 2}
+        ``0``: swapping (section 4: 2-3, 3-2, 4-4 and 2-2 flips) and the
+        evaluation of configurations, with the replacement of tets
+        (:func:`~trivsel.mesh.storage._replace`) that it shares with insertion.
+        ``1``: point insertion (section 4: in a tet, on a face, on an edge),
+        the replacement of tets, bucket filling and residuals.
+        ``2``: the drivers of both methods (:func:`~trivsel.mesh.drivers.run_insertions`,
+        :func:`~trivsel.mesh.greedy.run_greedy`), the global pass and the point
+        weights; run after 0 and 1 it only loads their kernels from the cache.
+        ``None``: everything, in one process.
+
+    Returns
+    -------
+    int
+        The number of (kernel, signature) pairs compiled or loaded.
+    """
+    from numba import typeof, types as nt
+
+    if method not in ("paper", "greedy"):
+        raise ValueError(f"unknown method {method!r}: choose 'paper' or 'greedy'")
+    if part not in (None,) + PARTS:
+        raise ValueError(f"unknown part {part!r}: choose 0, 1, 2 or None (all)")
+    if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
+        return 0
+    ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
+    S = make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
+    st = typeof(S)
+    helpers = helper_signatures(S)
+    i8, f8, v8, m8, f82 = nt.int64, nt.float64, nt.int64[::1], nt.int64[:, ::1], nt.float64[:, ::1]
+    # cheap leaves first (every part), then each part's own subtree, callees first
+    leaves = [h for h in helpers if h[0] in _LEAVES]
+    replace = [h for h in helpers if h[0] in (heap._set_best, storage._replace)]
+    swapping = [h for h in helpers if h[0] in _SWAP_ONLY] + replace + [h for h in helpers if h[0] is swap.swap]
+    insertion_ = [(storage.fill_buckets, (st, v8)), (drivers.residuals, (st, nt.float64[::1])),
+                  (insertion.insert_point, (st, i8)), (insertion.cone_from_hull, (st, i8))]
+    driving = [(drivers.run_insertions, (st, v8, i8, i8, f8, f8)), (greedy.run_greedy, (st, i8, f8, f8, v8)),
+               (drivers.global_pass, (st,)), (drivers.point_weights, (st, m8, f82))]
+    if part == 0:
+        plan = leaves + swapping
+    elif part == 1:
+        plan = leaves + replace + insertion_
+    else:
+        plan = leaves + swapping + insertion_ + driving
+    pinned = {fn for fn, _ in helpers}
+    for fn, sig in plan:
+        if fn in pinned:
+            _pin(fn, sig)
+        else:
+            fn.compile(sig)
+    if part in (None, 2):
+        _PINNED.add(st)
+    return len(plan)
