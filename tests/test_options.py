@@ -165,9 +165,12 @@ def test_no_import_cycles_in_the_library():
                 base = pkg
                 for _ in range(node.level - 1):
                     base = base.rpartition(".")[0]
-                target = f"{base}.{node.module}" if node.module else base
-                deps.add(target)
-                deps.update(f"{target}.{a.name}" for a in node.names)
+                if node.module:
+                    target = f"{base}.{node.module}"
+                    deps.add(target)
+                    deps.update(f"{target}.{a.name}" for a in node.names)
+                else:  # `from . import x, y`: the sibling modules x and y
+                    deps.update(f"{base}.{a.name}" for a in node.names)
         graph[mod] = deps
     graph = {m: {d for d in deps if d in graph and d != m} for m, deps in graph.items()}
 

@@ -547,20 +547,15 @@ def _n_points(wildcards):
 
 
 def scale_mem_mb(wildcards, attempt):
-    """Memory (MB) of one ``scale_run`` job: 0.6 GB plus 2 KB per grid point, more on a retry.
-
-    Measured (peak of the process, 65^3 = 274,625 points): paper 0.51 GB, greedy 0.51 GB,
-    VTK 0.43 GB, of which about 0.2 GB is the interpreter and libraries.
-    """
+    """Memory (MB) of one ``scale_run`` job: 0.6 GB (the interpreter and libraries, with a
+    margin) plus 2 KB per grid point, more on a retry (benchmarks/README.md has the peaks
+    behind these constants)."""
     return int(600 + 0.002 * _n_points(wildcards)) * attempt
 
 
 def scale_runtime(wildcards, attempt):
-    """Minutes of one ``scale_run`` job: 5 plus 0.6 ms per grid point, more on a retry.
-
-    Measured on 65^3 (274,625 points): paper 12 s, greedy 31 s, VTK 5 s (the job budget:
-    7 minutes; 26 minutes for 129^3).
-    """
+    """Minutes of one ``scale_run`` job: 5 plus 0.6 ms per grid point, more on a retry (a wide
+    margin over the times in benchmarks/README.md)."""
     return int(5 + _n_points(wildcards) / 100_000) * attempt
 
 

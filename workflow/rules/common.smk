@@ -201,9 +201,9 @@ def all_targets():
     return targets
 
 
-# --- resources: grow with the number of grid points (n+1)^3.  Measured for one
-# reduction on this project's machine: n = 16 (4913 points) 3 s and 0.2 GB,
-# n = 32 (35937 points) 33 s and 0.38 GB; time grows about as points^1.2.
+# --- resources: a fixed part (interpreter, libraries) plus a cost per grid point (n+1)^3,
+# with a wide margin; the time grows a little faster than the number of points.  The
+# measurements behind the constants are in benchmarks/README.md.
 def _points(wildcards):
     return (int(wildcards.n) + 1) ** 3
 
@@ -234,8 +234,7 @@ def methods_targets():
     return targets
 
 
-# Measured on this project's machine for n = 16 (4913 points), every method at 6 counts:
-# 10-16 s and 0.30-0.35 GB (max RSS) per job.
+# A methods job runs every method at every count: about ten reductions' worth.
 def methods_mem_mb(wildcards, attempt):
     return int(1000 + 0.05 * _points(wildcards)) * attempt
 

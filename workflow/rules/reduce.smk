@@ -9,8 +9,8 @@
 rule kernels:
     """Compile the numba kernels of one method into numba's cache in two halves, side by
     side, before the reductions fan out (trivsel compile --part 0: swapping, --part 1:
-    insertion; about 12 s instead of 21 s on a fresh machine, a no-op load once they are
-    cached)."""
+    insertion: about half the time of one process on a fresh machine, a no-op load once
+    they are cached)."""
     output:
         "results/kernels/{method}_part{part}.txt",
     params:
