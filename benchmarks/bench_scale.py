@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""Issue 6 targets: trivsel's paper and greedy methods against VTK's decimation as the grid grows.
+"""Scaling targets: trivsel's paper and greedy methods against VTK's decimation as the grid grows.
 
 Function 4 (exponential) reduced to 10 % of its points:
 

@@ -89,3 +89,15 @@ def test_hull_boundary_mask_is_chunked_and_exact():
     g = trivsel.sample_grid(1, 5)
     mask = hull_boundary_mask(g.points)
     np.testing.assert_array_equal(mask, ~g.interior_mask())
+
+
+def test_requests_larger_than_the_memory_are_refused_before_allocating(tmp_path, capsys, monkeypatch):
+    assert main(["reduce", "--function", "4", "--n", "2000", "--fractions", "0.1", "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err
+    assert "a grid of n = 2000 (2001^3 points) needs about" in err and err.count("\n") == 1
+    import trivsel.resources as res
+
+    data = trivsel.sample_grid(1, 16)
+    monkeypatch.setattr(res, "available_bytes", lambda: 10**6)
+    with pytest.raises(trivsel.InputError, match=r"reducing 4913 points needs about 0.00229 GiB, more than"):
+        trivsel.reduce(data, fractions=[0.1])

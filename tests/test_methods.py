@@ -1,4 +1,4 @@
-"""Issue 4: greedy selection, fitted values, the matched-count harness of every method
+"""Greedy selection, fitted values, the matched-count harness of every method
 (trivsel.study.comparison) and its tables, plot and workflow stage."""
 
 from __future__ import annotations

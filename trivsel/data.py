@@ -103,6 +103,9 @@ def sample_grid(function, n: int = 16) -> PointData:
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
         raise InputError(f"grid resolution n must be an integer >= 2, got {n!r}")
     n = int(n)
+    from .resources import GRID_BYTES_PER_POINT, check_memory
+
+    check_memory(GRID_BYTES_PER_POINT * float(n + 1) ** 3, f"a grid of n = {n} ({n + 1}^3 points)")
     idx = np.arange(n + 1)
     ii, jj, kk = np.meshgrid(idx, idx, idx, indexing="ij")
     ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1).astype(np.int64)
@@ -125,6 +128,9 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
     if not np.all(np.isfinite(v)):
         bad = np.argwhere(~np.isfinite(v))[0]
         raise InputError(f"non-finite value {v[tuple(bad)]} at grid index {tuple(int(b) for b in bad)}")
+    from .resources import GRID_BYTES_PER_POINT, check_memory
+
+    check_memory(GRID_BYTES_PER_POINT * float(v.size), f"a grid of {v.shape} points")
     origin = np.asarray(origin, float)
     spacing = np.asarray(spacing, float)
     if np.any(spacing <= 0) or not np.all(np.isfinite(spacing)):

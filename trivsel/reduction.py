@@ -161,6 +161,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if not fractions and count is None and tol_rms is None and tol_inf is None:
         raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
     stop = dict(fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf)
+    from .resources import MESH_BYTES_PER_POINT, check_memory
+
+    check_memory(MESH_BYTES_PER_POINT * float(N), f"reducing {N} points")
 
     # --- fixed points and the initial triangulation (section 3)
     if data.is_grid:

@@ -39,11 +39,16 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
     for k, t in enumerate(ids):
         if _orient(S, *tets[k]) <= 0:
             raise MeshInvalid(f"tet {t} {tets[k].tolist()} is not positively oriented")
-    # 2. volume
-    vol = orient3d_float(P, tets).sum() / 6.0
+    # 2. volume, in coordinates centred on the bounding box (less cancellation); float
+    # coordinates far from the origin resolve a thin box only to eps * |p| / extent
+    lo, hi = P.min(axis=0), P.max(axis=0)
+    Pc = P - 0.5 * (lo + hi)
+    vol = orient3d_float(Pc, tets).sum() / 6.0
     if hull_volume is None:
-        hull_volume = ConvexHull(P).volume
-    if abs(vol - hull_volume) > rtol * max(hull_volume, 1e-300) * 10:
+        hull_volume = ConvexHull(Pc).volume
+    extent = max(float(np.min(hi - lo)), 1e-300)
+    tol = max(rtol * 10, 64 * np.finfo(float).eps * float(np.max(np.abs(P))) / extent)
+    if abs(vol - hull_volume) > tol * max(hull_volume, 1e-300):
         raise MeshInvalid(f"total volume {vol!r} differs from the hull volume {hull_volume!r}")
     # 3. faces and links
     alive = S.alive
