@@ -25,9 +25,10 @@ from __future__ import annotations
 import argparse
 import math
 import numbers
-from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 
 from .exceptions import InputError
+from .selection import TIE_ORDERS
 
 __all__ = ["Options", "option_fields", "add_arguments", "from_namespace", "variant_tag", "config_schema",
            "options_markdown", "METHOD_DEFAULT"]
@@ -79,7 +80,7 @@ class Options:
     tie_order: str = _option(
         "index", "order among equal quantised curvatures: 'index' (C order over (i, j, k)), 'reverse', "
         "'random' (seeded), 'centre' (nearest the centre first)",
-        kind="choice", choices=("index", "reverse", "random", "centre"), paper="section 3", tag="tie")
+        kind="choice", choices=TIE_ORDERS, paper="section 3", tag="tie")
     boundary_diagonals: str = _option(
         "mirrored", "face diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored' (the "
         "Kuhn split mirrored in x; matches Table 1 best, the paper does not fix them)",

@@ -340,13 +340,12 @@ class _Run:
 
 def _option_docs():
     """The numpydoc entries of the option keywords, generated from :class:`Options`."""
-    from .options import _default_text
+    from .options import _choices, _default_text
 
     out = []
     for f in option_fields():
         meta = f.metadata
-        kind = ("{" + ", ".join(repr(c) for c in (meta["choices"] or ("paper", "greedy"))) + "}"
-                if meta["kind"] == "choice" else meta["kind"])
+        kind = ("{" + ", ".join(repr(c) for c in _choices(f)) + "}" if meta["kind"] == "choice" else meta["kind"])
         if meta["sequence"]:
             kind = f"list of {kind}"
         ref = f" ({meta['paper']})" if meta["paper"] else ""
