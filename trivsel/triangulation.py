@@ -20,13 +20,16 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from scipy.spatial import ConvexHull, Delaunay
+from scipy.spatial import ConvexHull, Delaunay, QhullError
 
 __all__ = [
     "orient3d_float",
     "kuhn_tetrahedra",
     "box_tetrahedra",
     "delaunay_tetrahedra",
+    "start_tetrahedra",
+    "exact_hull_tetrahedra",
+    "scattered_start",
     "boundary_triangles",
     "edge_neighbours",
     "kuhn_edge_neighbours",
@@ -87,13 +90,262 @@ def kuhn_tetrahedra(shape, mirror_x: bool = False) -> np.ndarray:
 
 
 def delaunay_tetrahedra(points) -> np.ndarray:
-    """Delaunay tetrahedra of scattered points, positively oriented, degenerate ones dropped."""
+    """Delaunay tetrahedra of scattered points, positively oriented, degenerate ones dropped.
+
+    For neighbour graphs only: dropping a flat tetrahedron may leave the
+    triangulation non-conforming.  :func:`start_tetrahedra` gives a conforming one.
+    """
     tri = Delaunay(np.asarray(points, float))
     tets = tri.simplices.astype(np.int64)
     vol = orient3d_float(np.asarray(points, float), tets)
     neg = vol < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]
     return tets[np.abs(vol) > 0]
+
+
+def _exact_signs(p, tets):
+    """Exact orientation sign of each tetrahedron (filtered float, exact fallback)."""
+    from .predicates import orient3d_float_sign
+
+    vol = orient3d_float(p, tets)
+    sign = np.sign(vol).astype(np.int64)
+    # only near-zero volumes need the exact test: |error| of the float determinant
+    # is far below 1e-10 of the product of the edge lengths
+    ext = np.ptp(p, axis=0).max() if len(p) else 1.0
+    for t in np.flatnonzero(np.abs(vol) <= 1e-10 * ext ** 3):
+        a, b, c, d = (p[i] for i in tets[t])
+        sign[t] = orient3d_float_sign(*a, *b, *c, *d)
+    return sign
+
+
+def _quad_diagonals(p, tet):
+    r"""The two diagonals ``((a, c), (b, d))`` of a flat tetrahedron's four coplanar
+    vertices in convex position, or None when they are not (one vertex inside the
+    triangle of the others, or three collinear).
+
+    ::
+
+        d ------- c      faces with diagonal ac: abc, acd (one side of the plane)
+        |  \   /  |      faces with diagonal bd: abd, bcd (the other side)
+        |    X    |
+        |  /   \  |
+        a ------- b
+    """
+    q = p[list(tet)]
+    normal = np.cross(q[1] - q[0], q[2] - q[0]) + np.cross(q[2] - q[0], q[3] - q[0]) \
+        + np.cross(q[3] - q[0], q[1] - q[0])
+    drop = int(np.argmax(np.abs(normal)))
+    uv = np.delete(q, drop, axis=1)
+
+    def side(i, j, k):
+        (x0, y0), (x1, y1), (x2, y2) = uv[i], uv[j], uv[k]
+        return np.sign((x1 - x0) * (y2 - y0) - (y1 - y0) * (x2 - x0))
+
+    for (i, k), (j, m) in (((0, 1), (2, 3)), ((0, 2), (1, 3)), ((0, 3), (1, 2))):
+        if side(i, k, j) * side(i, k, m) < 0 and side(j, m, i) * side(j, m, k) < 0:
+            return (tet[i], tet[k]), (tet[j], tet[m])
+    return None
+
+
+def _face_map(tets):
+    faces = {}
+    for t, tet in enumerate(tets):
+        for i in range(4):
+            faces.setdefault(tuple(sorted(tet[j] for j in range(4) if j != i)), []).append(t)
+    return faces
+
+
+def start_tetrahedra(points) -> np.ndarray:
+    r"""A conforming tetrahedralization of the convex hull of ``points`` with no flat
+    tetrahedra: the start mesh for scattered data (section 3).
+
+    Delaunay tetrahedra of (nearly) cospherical points can include flat ones: four
+    coplanar vertices in convex position whose two sides are triangulated with
+    different diagonals.  Dropping such a tetrahedron leaves two faces unmatched, so
+    each flat one is removed by a local flip instead (exact orientation signs):
+
+    * its faces on one side lie on the hull: the flat tetrahedron is dropped, and
+      its other two faces become hull faces;
+    * the two neighbours on one side share their apex ``p``: the pyramid ``p`` over
+      the quad, split along one diagonal, is re-split along the other, which
+      matches the faces on the far side (three tetrahedra become two)::
+
+                p                         p
+              / | \                     / | \
+            a - + - c     ->          a - + - c      diagonal ac  ->  bd
+              \ | /                     \ | /
+            (b, d flat)               (b, d below)
+    """
+    from .exceptions import InputError
+
+    p = np.asarray(points, float)
+    tets = Delaunay(p).simplices.astype(np.int64)
+    sign = _exact_signs(p, tets)
+    tets[sign < 0] = tets[sign < 0][:, [0, 2, 1, 3]]
+    flat = sign == 0
+    if not flat.any():
+        return tets
+    good = [tuple(t) for t in tets[~flat]]
+    pending = [tuple(t) for t in tets[flat]]
+    for _ in range(4 * len(pending) + 4):
+        if not pending:
+            break
+        f = pending.pop(0)
+        diag = _quad_diagonals(p, f)
+        if diag is None:
+            raise InputError(f"the convex hull is too degenerate to tetrahedralize: hull vertices {f} are coplanar "
+                             "and not in convex position")
+        faces = _face_map(good)
+        done = False
+        for (a, c), (b, d) in (diag, diag[::-1]):
+            # the two faces of f that contain the diagonal ac, and their neighbours
+            nb = [faces.get(tuple(sorted(face)), []) for face in ((a, b, c), (a, c, d))]
+            if not nb[0] and not nb[1]:
+                done = True  # hull side: drop f
+                break
+            if len(nb[0]) == 1 and len(nb[1]) == 1:
+                t1, t2 = good[nb[0][0]], good[nb[1][0]]
+                apex1 = set(t1) - {a, b, c}
+                apex2 = set(t2) - {a, c, d}
+                if apex1 == apex2:
+                    (apex,) = apex1
+                    for k in sorted((nb[0][0], nb[1][0]), reverse=True):
+                        good.pop(k)
+                    for new in ((apex, a, b, d), (apex, b, c, d)):
+                        s = _exact_signs(p, np.array([new]))[0]
+                        good.append(new if s > 0 else (new[0], new[2], new[1], new[3]))
+                    done = True
+                    break
+        if not done:
+            pending.append(f)  # another flip may make its neighbours share an apex
+    if pending:
+        raise InputError(f"the convex hull is too degenerate to tetrahedralize: {len(pending)} flat Delaunay "
+                         "tetrahedra of its vertices could not be flipped away")
+    return np.array(good, dtype=np.int64)
+
+
+def _signs_against(p, tris, q):
+    """Exact sign of ``orient3d(a, b, c, x)`` for every triangle row and point ``x`` of
+    ``q`` (float filter, exact fallback); shape (len(q), len(tris))."""
+    from .predicates import orient3d_float_sign
+
+    a, b, c = p[tris[:, 0]], p[tris[:, 1]], p[tris[:, 2]]
+    n = np.cross(b - a, c - a)
+    ext = max(float(np.ptp(np.concatenate([p, q]), axis=0).max()), 1e-300)
+    out = np.empty((len(q), len(tris)), np.int64)
+    step = max(1, (1 << 20) // max(len(tris), 1))
+    for s in range(0, len(q), step):
+        x = q[s:s + step]
+        d = np.einsum("fk,pfk->pf", n, x[:, None, :] - a[None, :, :])
+        sign = np.sign(d).astype(np.int64)
+        for i, f in zip(*np.nonzero(np.abs(d) <= 1e-10 * ext ** 3)):
+            sign[i, f] = orient3d_float_sign(*a[f], *b[f], *c[f], *x[i])
+        out[s:s + step] = sign
+    return out
+
+
+def exact_hull_tetrahedra(points, order):
+    r"""A tetrahedralization of the convex hull of ``points[order]`` built with exact
+    orientation tests (beneath-beyond): start from a tetrahedron of four points, then
+    join each point that lies strictly beyond the current hull to every hull face it
+    sees.  Every tetrahedron has an exactly positive volume, the result conforms,
+    and a point on or inside the hull is never a vertex.
+
+    ::
+
+              p   (beyond the faces it sees)
+             /|\
+            / | \      horizon edges: the edges of the seen faces that only one of
+        ---a--+--b---  them has; the new hull faces are (edge, p)
+
+    Returns the tetrahedra (global point ids).  Used when Qhull's triangulation of
+    nearly degenerate input cannot be verified exactly.
+    """
+    from .exceptions import InputError
+
+    p = np.asarray(points, float)
+    order = np.asarray(order, np.int64)
+    q = p[order]
+    # a non-degenerate first tetrahedron: extreme in x, farthest from it, from that line, from that plane
+    i0 = int(np.argmin(q[:, 0]))
+    i1 = int(np.argmax(np.linalg.norm(q - q[i0], axis=1)))
+    u = q[i1] - q[i0]
+    i2 = int(np.argmax(np.linalg.norm(np.cross(q - q[i0], u), axis=1)))
+    nrm = np.cross(u, q[i2] - q[i0])
+    d = (q - q[i0]) @ nrm
+    i3 = int(np.argmax(np.abs(d)))
+    first = np.array([order[i0], order[i1], order[i2], order[i3]])
+    s = _exact_signs(p, first[None])[0]
+    if s == 0:
+        raise InputError("the points are coplanar: their convex hull has no volume")
+    if s < 0:
+        first = first[[0, 2, 1, 3]]
+    tets = [tuple(first)]
+    a, b, c, dd = first
+    # outward hull faces: the tet's fourth vertex on their negative side
+    faces = np.array([(b, c, dd), (a, dd, c), (a, b, dd), (a, c, b)], np.int64)
+    placed = set(first.tolist())
+    for g in order:
+        if g in placed:
+            continue
+        seen = _signs_against(p, faces, p[[g]])[0] > 0
+        if not seen.any():
+            continue
+        vis = faces[seen]
+        tets.extend((int(f[0]), int(f[1]), int(f[2]), int(g)) for f in vis)
+        edges = {}
+        for f in vis:
+            for e in ((f[0], f[1]), (f[1], f[2]), (f[2], f[0])):
+                key = (min(e), max(e))
+                edges[key] = None if key in edges else e
+        horizon = [e for e in edges.values() if e is not None]
+        faces = np.concatenate([faces[~seen], np.array([(e[0], e[1], g) for e in horizon], np.int64)])
+        placed.add(int(g))
+    return np.array(tets, dtype=np.int64)
+
+
+def _is_valid_start(p, tets, near):
+    """Exact check of a start mesh: positive volumes, every face in one or two
+    tetrahedra, and no point of ``near`` strictly outside a boundary face."""
+    if (_exact_signs(p, tets) <= 0).any():
+        return False
+    faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]],
+                                    tets[:, [0, 1, 2]]]), axis=1)
+    _, counts = np.unique(faces, axis=0, return_counts=True)
+    if counts.max() > 2:
+        return False
+    bnd = boundary_triangles(tets)
+    return not (_signs_against(p, bnd, p[near]) > 0).any()
+
+
+def scattered_start(points, hull_vertices):
+    """The start mesh of scattered data (section 3) and its vertices.
+
+    Qhull's Delaunay tetrahedra of the hull vertices, made free of flat ones by
+    :func:`start_tetrahedra`, when an exact check confirms them; otherwise (nearly
+    degenerate input, where Qhull's tolerances misplace the hull) the exact
+    construction :func:`exact_hull_tetrahedra` over the hull vertices and the
+    points near the hull.
+
+    Returns
+    -------
+    tets : (M, 4) int64, global point ids, positively oriented
+    vertices : (V,) int64, the sorted vertex ids (the fixed points)
+    """
+    from .exceptions import InputError
+
+    p = np.asarray(points, float)
+    hull_vertices = np.asarray(hull_vertices, np.int64)
+    near = np.union1d(np.flatnonzero(hull_boundary_mask(p, rtol=1e-9)), hull_vertices)
+    try:
+        tets = hull_vertices[start_tetrahedra(p[hull_vertices])]
+        if _is_valid_start(p, tets, near):
+            return tets, np.unique(tets)
+    except (QhullError, InputError):  # Qhull's failure on degenerate input: the exact construction handles it
+        pass
+    rest = np.setdiff1d(near, hull_vertices)
+    tets = exact_hull_tetrahedra(p, np.concatenate([hull_vertices, rest]))
+    return tets, np.unique(tets)
 
 
 def boundary_triangles(tets) -> np.ndarray:

@@ -11,7 +11,7 @@ from .geometry import _orient, _positive
 from .greedy import greedy_next, run_greedy
 from .heap import _heap_rebuild
 from .insertion import cone_from_hull, insert_point
-from .state import (A_SSE, C_CASE1, C_CASE2, C_CASE3, C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_FLIP32, C_FLIP44,
+from .state import (A_SSE, C_ABOVE, C_CASE1, C_CASE2, C_CASE3, C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_FLIP32, C_FLIP44,
                     C_HW, C_MEMHITS, C_NVERT, C_ROUNDCAP, ERROR_MESSAGES, copy_state, make_state)
 from .storage import _alloc, _replace, fill_buckets
 from .swap import swap
@@ -68,6 +68,11 @@ class TetMesh:
     def resid(self):
         """The residual f - L of every original point (a view, updated as the mesh changes)."""
         return self.S.resid
+
+    @property
+    def n_above_tol_inf(self):
+        """How many points have a residual above the option ``tol_inf`` (when it is set)."""
+        return int(self.S.ctr[C_ABOVE])
 
     @property
     def sse_sum(self):
