@@ -13,7 +13,7 @@ from trivsel.cli import main
 from trivsel.data import sample_grid
 
 ERRORS_COLUMNS = ["function", "n", "method", "values", "fraction", "n_selected", "E_rms", "E_rms_interior",
-                  "E_inf", "E_inf_interior", "seconds"]
+                  "E_inf", "E_inf_interior"]  # no wall times: they are in result.json
 
 
 def test_reduce_function_writes_errors_meshes_and_json(tmp_path, capsys):
@@ -34,6 +34,10 @@ def test_reduce_function_writes_errors_meshes_and_json(tmp_path, capsys):
         assert m.volume == pytest.approx(8.0)
     info = json.loads((out / "result.json").read_text())
     assert info["options"]["criterion"] == "rms" and len(info["selected"]) == df.n_selected.max()
+    # the wall times: per snapshot (time from the start to that count) and per stage
+    snaps = info["snapshots"]
+    assert [s["n_selected"] for s in snaps] == sorted(df.n_selected) and all(s["seconds"] > 0 for s in snaps)
+    assert info["timings"]["total"] >= max(s["seconds"] for s in snaps)
     assert not [p for p in tmp_path.iterdir() if p.name.startswith(".trivsel-")]
 
 
@@ -170,8 +174,20 @@ def test_progress_line_on_request_and_quiet_in_logs(tmp_path):
     lines = [x for x in p.stderr.replace("\r", "\n").splitlines() if "points/s" in x]
     done = [int(x.split("]")[1].split("/")[0]) for x in lines]
     assert len(lines) > 10 and done == sorted(done) and done[-1] == 219  # 30 % of 729, rounded half up
+    stages = [x for x in p.stderr.replace("\r", "\n").splitlines() if x.startswith("trivsel [")]
+    assert [s.split("] ")[1].split(" ")[0] for s in stages] == ["curvature", "inserting"]
     quiet = _run_cli(*args, "--out", str(tmp_path / "b"))  # stderr is a pipe here, as in workflow logs
-    assert "points/s" not in quiet.stderr and quiet.returncode == 0
+    assert "points/s" not in quiet.stderr and "trivsel [" not in quiet.stderr and quiet.returncode == 0
+
+
+def test_long_stages_are_announced_for_scattered_files(tmp_path):
+    rng = np.random.default_rng(0)
+    p = rng.random((300, 3))
+    np.savez(tmp_path / "pts.npz", points=p, values=p[:, 0] ** 2)
+    r = _run_cli("reduce", str(tmp_path / "pts.npz"), "--fractions", "0.3", "--out", str(tmp_path / "o"),
+                 "--progress", "always")
+    stages = [x.split("] ")[1] for x in r.stderr.replace("\r", "\n").splitlines() if x.startswith("trivsel [")]
+    assert [s.split(" ")[0] for s in stages] == ["reading", "convex", "Delaunay", "curvature", "inserting"], stages
 
 
 def test_reduce_progress_callback_reports_current_errors():
@@ -182,3 +198,13 @@ def test_reduce_progress_callback_reports_current_errors():
     assert seen[-1][0] == seen[-1][1] == r.snapshots[-1].n_selected
     assert seen[-1][2] == pytest.approx(r.snapshots[-1].errors["E_rms"], rel=1e-9)
     assert seen[-1][3] == pytest.approx(r.snapshots[-1].errors["E_inf"], rel=1e-12)
+
+
+def test_errors_csv_is_identical_across_runs(tmp_path):
+    """errors.csv holds no wall times, so two runs of the same reduction give the same bytes."""
+    args = ["reduce", "--function", "1", "--n", "4", "--fractions", "0.5"]
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert main([*args, "--out", str(a)]) == 0
+    assert main([*args, "--out", str(b)]) == 0
+    assert (a / "errors.csv").read_bytes() == (b / "errors.csv").read_bytes()
+    assert "seconds" not in (a / "errors.csv").read_text().splitlines()[0]

@@ -69,10 +69,10 @@ def test_npz_grid_round_trip_and_function_grid_ids(tmp_path):
 
 
 def test_unsupported_suffix_is_refused(tmp_path, capsys):
-    (tmp_path / "brain.nii").write_bytes(b"\0" * 400)
-    assert main(["reduce", str(tmp_path / "brain.nii"), "--fractions", "0.3", "--out", str(tmp_path / "o")]) == 2
+    (tmp_path / "brain.mnc").write_bytes(b"\0" * 400)
+    assert main(["reduce", str(tmp_path / "brain.mnc"), "--fractions", "0.3", "--out", str(tmp_path / "o")]) == 2
     err = capsys.readouterr().err
-    assert "unsupported file type '.nii'" in err and err.count("\n") == 1
+    assert "unsupported file type '.mnc'" in err and err.count("\n") == 1
     assert not (tmp_path / "o").exists()
 
 
@@ -101,3 +101,188 @@ def test_requests_larger_than_the_memory_are_refused_before_allocating(tmp_path,
     monkeypatch.setattr(res, "available_bytes", lambda: 10**6)
     with pytest.raises(trivsel.InputError, match=r"reducing 4913 points needs about 0.00229 GiB, more than"):
         trivsel.reduce(data, fractions=[0.1])
+
+
+# NIfTI and NRRD: the grid keeps every voxel where the file puts it; original_index is the voxel's
+# Fortran-order index into the file's 3-D voxel array (within the chosen volume).
+
+def _check_voxel_round_trip(path, affine, scaled, tmp_path, volume=None):
+    """Every point (loaded, and in the output mesh) sits at ``affine @ [i, j, k, 1]`` of the voxel
+    its original_index names and has that voxel's value."""
+
+    def check(ids, points, values):
+        ijk = np.stack(np.unravel_index(ids, scaled.shape, order="F"), axis=1)
+        world = (np.c_[ijk, np.ones(len(ids))] @ np.asarray(affine, float).T)[:, :3]
+        np.testing.assert_allclose(points, world, rtol=0, atol=1e-9)
+        np.testing.assert_array_equal(values, scaled.ravel(order="F")[ids])
+
+    data = load(path, volume=volume)
+    assert data.is_grid and np.all(data.spacing > 0)
+    assert sorted(data.file_index) == list(range(scaled.size))
+    check(data.file_index, data.points, data.values)
+    out = tmp_path / f"out-{path.name}"
+    args = ["reduce", str(path), "--fractions", "0.5", "--out", str(out)]
+    assert main(args + ([] if volume is None else ["--volume", str(volume)])) == 0
+    m = pv.read(out / "mesh_0.5.vtu")
+    check(m.point_data["original_index"], m.points, m.point_data["value"])
+    return data
+
+
+def _save_nifti(path, data, affine, slope_inter=None):
+    import nibabel as nib
+
+    img = nib.Nifti1Image(data, affine)
+    if slope_inter is not None:
+        img.header.set_slope_inter(*slope_inter)
+    nib.save(img, path)
+    back = nib.load(path)
+    return back.affine, back.get_fdata(dtype=np.float64)
+
+
+def test_nifti_scaling_flipped_axis_and_origin(tmp_path):
+    import nibabel as nib
+
+    raw = np.random.default_rng(4).integers(-300, 300, (5, 6, 7)).astype(np.int16)
+    affine = np.array([[-1.5, 0, 0, 10.0], [0, 2.0, 0, -4.0], [0, 0, 0.5, 3.0], [0, 0, 0, 1]])
+    path = tmp_path / "head.nii.gz"
+    back, scaled = _save_nifti(path, raw, affine, (0.5, 10.0))
+    assert nib.load(path).get_data_dtype() == np.int16 and np.array_equal(back, affine)
+    np.testing.assert_array_equal(scaled, raw * 0.5 + 10.0)  # scl_slope and scl_inter applied
+    data = _check_voxel_round_trip(path, affine, scaled, tmp_path)
+    assert data.name == "head" and data.shape == (5, 6, 7)
+    np.testing.assert_array_equal(data.spacing, [1.5, 2.0, 0.5])
+    np.testing.assert_array_equal(data.origin, [10.0 - 1.5 * 4, -4.0, 3.0])  # x runs backwards
+
+
+def test_nifti_permuted_axes(tmp_path):
+    raw = np.random.default_rng(5).random((5, 6, 7)).astype(np.float32)
+    # voxel axis 0 runs along y, 1 along z (backwards), 2 along x
+    affine = np.array([[0, 0, 0.75, -2.0], [1.5, 0, 0, 1.0], [0, -2.0, 0, 7.0], [0, 0, 0, 1]])
+    path = tmp_path / "perm.nii"
+    back, scaled = _save_nifti(path, raw, affine)
+    data = _check_voxel_round_trip(path, back, scaled, tmp_path)
+    assert data.shape == (7, 5, 6)
+    np.testing.assert_array_equal(data.spacing, [0.75, 1.5, 2.0])
+    np.testing.assert_array_equal(data.origin, [-2.0, 1.0, 7.0 - 2.0 * 5])
+
+
+def test_nifti_without_orientation_uses_voxel_sizes(tmp_path):
+    import nibabel as nib
+
+    img = nib.Nifti1Image(np.random.default_rng(6).random((5, 6, 7)), np.diag([0.5, 1.0, 2.0, 1.0]))
+    img.set_sform(None, code=0)
+    img.set_qform(None, code=0)
+    nib.save(img, tmp_path / "plain.nii")
+    scaled = nib.load(tmp_path / "plain.nii").get_fdata()
+    data = _check_voxel_round_trip(tmp_path / "plain.nii", np.diag([0.5, 1.0, 2.0, 1.0]), scaled, tmp_path)
+    np.testing.assert_array_equal(data.origin, [0, 0, 0])
+
+
+def test_nifti_4d_needs_a_volume(tmp_path):
+    path = tmp_path / "series.nii.gz"
+    affine = np.array([[2.0, 0, 0, 1], [0, 2.0, 0, 2], [0, 0, -3.0, 3], [0, 0, 0, 1]])
+    back, scaled = _save_nifti(path, np.random.default_rng(7).random((5, 6, 7, 3)), affine)
+    with pytest.raises(trivsel.InputError, match=r"4-D image of 3 volumes .*choose one with --volume K"):
+        load(path)
+    for bad in (3, -1):
+        with pytest.raises(trivsel.InputError, match=rf"^volume {bad} is out of range: .* holds 3 volume"):
+            load(path, volume=bad)
+    data = _check_voxel_round_trip(path, back, scaled[..., 1], tmp_path, volume=1)
+    assert data.meta["volume"] == 1
+    with pytest.raises(trivsel.InputError, match="--volume 0 applies to 4-D NIfTI and NRRD images"):
+        load(tmp_path / "out-series.nii.gz" / "mesh_0.5.vtu", volume=0)
+
+
+def test_nifti_refusals_are_one_line(tmp_path):
+    import nibabel as nib
+
+    rng = np.random.default_rng(8)
+    angle = np.deg2rad(30)
+    oblique = np.array([[np.cos(angle), -np.sin(angle), 0, 0], [np.sin(angle), np.cos(angle), 0, 0],
+                        [0, 0, 1, 0], [0, 0, 0, 1]])
+    nib.save(nib.Nifti1Image(rng.random((5, 6, 7)), oblique), tmp_path / "oblique.nii")
+    nib.save(nib.Nifti1Image(rng.random((5, 6)), np.eye(4)), tmp_path / "flat.nii")
+    nib.save(nib.Nifti1Image(rng.random((5, 6, 7)).astype(np.complex64), np.eye(4)), tmp_path / "complex.nii")
+    nan = rng.random((5, 6, 7))
+    nan[1, 2, 3] = np.nan
+    nib.save(nib.Nifti1Image(nan, np.eye(4)), tmp_path / "nan.nii")
+    whole = nib.Nifti1Image(rng.random((5, 6, 7)), np.eye(4)).to_bytes()
+    (tmp_path / "truncated.nii").write_bytes(whole[: len(whole) // 2])
+    (tmp_path / "junk.nii.gz").write_bytes(b"not a NIfTI file")
+    cases = {"oblique.nii": "'.*oblique.nii' is oblique", "flat.nii": r"2-D image of shape \(5, 6\)",
+             "complex.nii": "voxels of type complex64", "nan.nii": r"non-finite value nan at voxel \(1, 2, 3\)",
+             "truncated.nii": "cannot read the voxels of", "junk.nii.gz": "cannot read .* as NIfTI"}
+    for name, message in cases.items():
+        with pytest.raises(trivsel.InputError, match=message) as info:
+            load(tmp_path / name)
+        assert "\n" not in str(info.value) and name in str(info.value)
+
+
+def test_nifti_on_the_command_line(tmp_path):
+    import subprocess
+    import sys
+
+    path = tmp_path / "vol.nii.gz"
+    _save_nifti(path, np.random.default_rng(9).random((5, 6, 7)), np.diag([1.0, 2.0, -1.0, 1.0]))
+    out = tmp_path / "out"
+    p = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(path), "--fractions", "0.5", "--out", str(out)],
+                       capture_output=True, text=True)
+    assert p.returncode == 0, p.stderr
+    assert pv.read(out / "mesh_0.5.vtu").n_points == 105
+    series = tmp_path / "series.nii"
+    _save_nifti(series, np.random.default_rng(9).random((5, 6, 7, 2)), np.eye(4))
+    p = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(series), "--volume", "2", "--fractions", "0.5",
+                        "--out", str(tmp_path / "o2")], capture_output=True, text=True)
+    assert p.returncode == 2 and p.stderr.count("\n") == 1, p.stderr
+    assert p.stderr.startswith("trivsel: error: volume 2 is out of range") and "holds 2 volume(s)" in p.stderr
+    assert not (tmp_path / "o2").exists()
+
+
+def test_nrrd_directions_flips_and_volume(tmp_path):
+    import nrrd
+
+    samples = np.random.default_rng(10).integers(0, 1000, (3, 5, 6, 7)).astype(np.uint16)
+    # a list axis first (3 volumes), then voxel axes along z (backwards), x and y
+    dirs = np.array([[np.nan] * 3, [0, 0, -2.0], [0.5, 0, 0], [0, 1.25, 0]])
+    origin = np.array([1.0, 2.0, 3.0])
+    path = tmp_path / "d.nrrd"
+    nrrd.write(str(path), samples, {"space": "left-posterior-superior", "space directions": dirs,
+                                    "space origin": origin, "kinds": ["list", "domain", "domain", "domain"]})
+    with pytest.raises(trivsel.InputError, match=r"4-D image of 3 volumes \(shape \(3, 5, 6, 7\)\)"):
+        load(path)
+    affine = np.eye(4)
+    affine[:3, :3], affine[:3, 3] = dirs[1:].T, origin
+    data = _check_voxel_round_trip(path, affine, samples[2].astype(float), tmp_path, volume=2)
+    np.testing.assert_array_equal(data.spacing, [0.5, 1.25, 2.0])
+    np.testing.assert_array_equal(data.origin, [1.0, 2.0, 3.0 - 2.0 * 4])
+
+
+def test_nrrd_detached_header_and_spacings(tmp_path):
+    import nrrd
+
+    samples = np.random.default_rng(11).random((5, 6, 7)).astype(np.float32)
+    path = tmp_path / "s.nhdr"
+    nrrd.write(str(path), samples, {"spacings": [0.5, 1.0, -2.0]}, detached_header=True)
+    data = _check_voxel_round_trip(path, np.diag([0.5, 1.0, -2.0, 1.0]), samples.astype(float), tmp_path)
+    assert data.name == "s"
+    np.testing.assert_array_equal(data.origin, [0, 0, -12.0])
+
+
+def test_nrrd_refusals_are_one_line(tmp_path):
+    import nrrd
+
+    rng = np.random.default_rng(12)
+    nrrd.write(str(tmp_path / "oblique.nrrd"), rng.random((5, 6, 7)),
+               {"space": "left-posterior-superior", "space directions": np.array([[1, 0.2, 0], [0, 1, 0], [0, 0, 1.0]])})
+    nrrd.write(str(tmp_path / "flat.nrrd"), rng.random((5, 6)))
+    nrrd.write(str(tmp_path / "lost.nhdr"), rng.random((5, 6, 7)), detached_header=True)
+    (tmp_path / "lost.raw.gz").unlink()
+    nrrd.write(str(tmp_path / "whole.nrrd"), rng.random((5, 6, 7)), {"encoding": "raw"})
+    whole = (tmp_path / "whole.nrrd").read_bytes()
+    (tmp_path / "truncated.nrrd").write_bytes(whole[:-100])
+    cases = {"oblique.nrrd": "is oblique", "flat.nrrd": "2-D image of shape", "lost.nhdr": "cannot read .* as NRRD",
+             "truncated.nrrd": "cannot read .* as NRRD"}
+    for name, message in cases.items():
+        with pytest.raises(trivsel.InputError, match=message) as info:
+            load(tmp_path / name)
+        assert "\n" not in str(info.value) and name in str(info.value)

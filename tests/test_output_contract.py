@@ -94,3 +94,26 @@ def test_sigterm_exits_130_with_one_line(tmp_path):
     assert p.returncode == 130, err
     assert err.strip().splitlines() == ["trivsel: interrupted; the output folder is as it was before this run"]
     assert not (tmp_path / "o").exists()
+
+
+def test_ctrl_c_inside_the_compiled_loop_stops_the_run_there(tmp_path):
+    """The insertion loop returns to Python in short chunks, so SIGINT ends the run
+    mid-way (not after the whole loop) with one line and exit 130."""
+    code = ("import sys, trivsel.methods.paper as m\n"
+            "real = m.advance\n"
+            "def traced(mesh, order, done, stop, *a):\n"
+            "    print(done, flush=True); return real(mesh, order, done, stop, *a)\n"
+            "m.advance = traced\n"
+            "from trivsel.cli import main\n"
+            f"sys.exit(main(['reduce', '--function', '4', '--n', '40', '--fractions', '0.5', "
+            f"'--out', r'{tmp_path}/o']))\n")
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    assert p.stdout.readline().strip().isdigit()  # inside the insertion loop
+    assert p.stdout.readline().strip().isdigit()  # and a chunk later
+    p.send_signal(signal.SIGINT)
+    out, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.strip().splitlines() == ["trivsel: interrupted; the output folder is as it was before this run"]
+    reached = int(out.split()[-1]) if out.split() else 0
+    assert reached < 0.5 * 41**3 - 8  # it stopped inside the loop, far from the target
+    assert not (tmp_path / "o").exists()

@@ -298,3 +298,56 @@ def test_compile_kernels_rejects_bad_arguments(capsys):
         main(["compile", "--part", "3"])
     assert exc.value.code == 2
     assert "invalid choice: 3" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method", ["paper", "greedy"])
+@pytest.mark.parametrize("stop", [dict(fractions=[0.3, 0.1]), dict(tol_rms=0.01), dict(tol_inf=0.05)])
+def test_result_does_not_depend_on_where_the_compiled_loop_is_chunked(monkeypatch, method, stop):
+    """The insertion loop returns to Python in chunks (so that Ctrl-C is seen); a chunk
+    ending exactly where a tolerance is met must not insert one point more."""
+    import trivsel.reduction as R
+
+    def run(step):
+        monkeypatch.setattr(R, "CHUNK_STEP", step)
+        r = trivsel.reduce(5, n=12, method=method, **stop)
+        return [(s.n_selected, s.selected.tobytes(), s.tets.tobytes(), s.residuals.tobytes()) for s in r.snapshots]
+
+    whole = run(10**9)
+    assert run(1) == whole
+    assert run(7) == whole
+    assert run(None) == whole
+
+
+@pytest.mark.parametrize("method", ["paper", "greedy"])
+def test_extreme_magnitudes_are_scaled_exactly(method):
+    """Coordinates and values near the float limits (squares overflow or underflow) are
+    scaled by a power of two inside: the same selection, and errors scaled back exactly."""
+    rng = np.random.default_rng(0)
+    p = rng.random((300, 3))
+    f = np.sin(4 * p[:, 0]) + p[:, 1] ** 2
+    base = trivsel.reduce(scattered(p, f), fractions=[0.3], method=method, values=["data", "fit"])
+    b = base.snapshots[-1]
+    for e in (-1000, -500, 500, 1000):
+        s = trivsel.reduce(scattered(p * 2.0**e, f * 2.0**e), fractions=[0.3], method=method,
+                           values=["data", "fit"], check=check_mesh).snapshots[-1]
+        assert np.array_equal(s.selected, b.selected) and np.array_equal(s.tets, b.tets)
+        assert np.array_equal(s.residuals * 2.0**-e, b.residuals)
+        assert {k: v * 2.0**-e for k, v in s.errors.items()} == b.errors
+        assert np.array_equal(s.fit["values"] * 2.0**-e, b.fit["values"])
+    # a tolerance is in the data's units
+    tol = 2 * b.errors["E_rms"]
+    n_tol = trivsel.reduce(scattered(p, f), tol_rms=tol, method=method).snapshots[-1].n_selected
+    big = trivsel.reduce(scattered(p * 2.0**900, f * 2.0**900), tol_rms=tol * 2.0**900, method=method)
+    assert big.snapshots[-1].n_selected == n_tol
+
+
+@pytest.mark.parametrize("ce, ve", [(1e300, 1e-300), (1e-300, 1e300), (1.0, 1e300), (1.0, 1e-300), (1e300, 1.0)])
+def test_coordinates_and_values_at_opposite_float_limits_give_finite_errors(ce, ve):
+    rng = np.random.default_rng(1)
+    p = rng.random((200, 3))
+    f = np.sin(4 * p[:, 0]) + p[:, 1] ** 2
+    ref = trivsel.reduce(scattered(p, f), fractions=[0.3]).snapshots[-1].errors["E_rms"]
+    for method in ("paper", "greedy"):
+        r = trivsel.reduce(scattered(p * ce, f * ve), fractions=[0.3], method=method, check=check_mesh)
+        e = r.snapshots[-1].errors["E_rms"] / ve
+        assert np.isfinite(e) and 0.2 * ref < e < 5 * ref

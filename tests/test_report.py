@@ -27,12 +27,12 @@ def fabricated_errors(function, factor=1.05, n=16, fractions=(0.5, 0.2, 0.1)):
     pub = report.load_published()
     rows = []
     npts = (n + 1) ** 3
-    for k, fr in enumerate(fractions):
+    for fr in fractions:
         p = pub[(pub.function == function) & np.isclose(pub.fraction, fr)]
         e, ei = (float(p.E_rms.iloc[0]), float(p.E_rms_interior.iloc[0])) if len(p) else (0.1, 0.05)
         rows.append(dict(function=function, n=n, method="paper", values="data", fraction=fr,
                          n_selected=int(round(fr * npts)), E_rms=factor * e, E_rms_interior=factor * ei,
-                         E_inf=3 * e, E_inf_interior=2 * ei, seconds=0.1 * (k + 1)))
+                         E_inf=3 * e, E_inf_interior=2 * ei))
     return pd.DataFrame(rows)
 
 
@@ -117,7 +117,8 @@ def test_write_table1_from_fabricated_run_directories(tmp_path):
         out.mkdir()
         fabricated_errors(f, factor=0.95).to_csv(out / "errors.csv", index=False)
         (out / "result.json").write_text(json.dumps({"function": f, "options": {"criterion": "rms"},
-                                                     "timings": {"curvature": 0.5}}))
+                                                     "timings": {"curvature": 0.5},
+                                                     "snapshots": [{"seconds": 0.25}, {"seconds": 1.5}]}))
         csvs.append(out / "errors.csv")
         jsons.append(out / "result.json")
     table = report.write_table1(csvs, tmp_path / "t.csv", tmp_path / "t.md", result_jsons=jsons)
@@ -127,6 +128,8 @@ def test_write_table1_from_fabricated_run_directories(tmp_path):
     np.testing.assert_allclose(back.ratio_E_rms, 0.95)
     md = (tmp_path / "t.md").read_text()
     assert "## Run times" in md and "curvature (s)" in md and "reduce seconds" in md
+    # the reduce time is the last snapshot's time in result.json (errors.csv has no times)
+    assert "| Function | reduce seconds | curvature (s) |" in md and "| 1 | 1.50 | 0.50 |" in md
     assert "## Options used" in md and "`criterion`: rms" in md
     assert "table1_published.csv" in md
 

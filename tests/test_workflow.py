@@ -112,10 +112,17 @@ def test_stage_configs_are_valid(stage):
 
 
 def test_sweep_dry_run(tmp_path):
-    """All three sweep files at once: 3 resolutions x 2 criteria x 2 candidate sets x 5 functions."""
+    """All three sweep files at once: 3 resolutions x 2 criteria x 2 candidate sets x 5 functions.
+    With the paper's fractions they stop when the workflow loads: 50 % of the 9^3 grid is more than
+    the 8 corners and 7^3 interior points that `candidates: interior` can select at n = 8."""
     write_config(tmp_path)
     sweeps = [str(REPO / "config" / s) for s in ("resolution.yaml", "criterion.yaml", "candidates.yaml")]
     r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--configfile", str(tmp_path / "config.yaml"), *sweeps)
+    assert r.returncode != 0 and "Building DAG of jobs" not in r.output, r.output
+    assert "config reduce: fractions: 0.5 selects 365 of the 729 points of n = 8, more than the 351" in r.output
+    (tmp_path / "fractions.yaml").write_text("reduce: {fractions: [0.45, 0.2, 0.1]}\n")
+    r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--configfile", str(tmp_path / "config.yaml"), *sweeps,
+                str(tmp_path / "fractions.yaml"))
     assert r.returncode == 0, r.output
     assert planned(r.output, "reduce") == 60 and planned(r.output, "table1") == 12, r.output
 
@@ -333,3 +340,52 @@ def test_readme_rule_rewrites_the_marked_block(tiny_run):
     assert "stale" not in text and text.startswith("# title\n") and text.endswith("\n\nmore text\n")
     assert "| Function | 50 % | 20 % | 10 % |" in text and "2. Quadratic polynomial" in text
     assert (tiny_run / "docs" / "fig4_saddle_slices.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize("overrides,messages", [
+    # schema (options.schema.json, generated from trivsel.Options): choices and bounds
+    ({"reduce": {"options": {"method": ["foo"]}}},
+     ["'foo' is not one of ['paper', 'greedy']", "On instance['reduce']['options']['method'][0]"]),
+    ({"reduce": {"options": {"curvature": ["foo"]}}},
+     ["'foo' is not one of ['direct', 'local-frame']", "On instance['reduce']['options']['curvature'][0]"]),
+    ({"reduce": {"options": {"seed": [-1]}}},
+     ["-1 is less than the minimum of 0", "On instance['reduce']['options']['seed'][0]"]),
+    ({"reduce": {"options": {"rel_tol": [-1e-3]}}},
+     ["-0.001 is less than the minimum of 0.0", "On instance['reduce']['options']['rel_tol'][0]"]),
+    ({"reduce": {"options": {"max_flips": [-2]}}},
+     ["-2 is not valid under any of the given schemas", "On instance['reduce']['options']['max_flips'][0]"]),
+    # what JSON Schema cannot say, checked when common.smk builds every trivsel.Options
+    ({"reduce": {"options": {"rel_tol": [math.inf]}}}, ["config reduce: options: rel_tol must be finite, got inf"]),
+    ({"reduce": {"options": {"quantum": [math.nan]}}}, ["config reduce: options: quantum must be finite, got nan"]),
+    ({"reduce": {"options": {"seed": [2.0]}}}, ["config reduce: options: seed must be an integer, got 2.0"]),
+    ({"data": {"n": [16.0]}}, ["config data: n: 16.0 is not an integer (write e.g. 16, not 16.0)"]),
+    # fractions against the grid: at least the 8 fixed corners, at most the selectable points
+    ({"reduce": {"fractions": [1e-9]}},
+     ["config reduce: fractions: 1e-09 selects 0 of the 4913 points of n = 16, fewer than the 8 fixed corner "
+      "points of the box: the smallest fraction for n = 16 is 0.00163 (8 / 4913)"]),
+    ({"data": {"n": [16, 4]}, "reduce": {"fractions": [0.5, 0.05]}},
+     ["config reduce: fractions: 0.05 selects 6 of the 125 points of n = 4", "smallest fraction for n = 4 is 0.064"]),
+    ({"data": {"n": [4]}, "reduce": {"options": {"candidates": ["all", "interior"]}}},
+     ["config reduce: fractions: 0.5 selects 63 of the 125 points of n = 4, more than the 35 selectable with "
+      "candidates: interior", "the largest fraction for n = 4 is 0.283"]),
+    ({"methods": {"activate": True}, "data": {"n": [4]}},
+     ["config methods: fractions: 0.05 selects 6 of the 125 points of n = 4"]),
+])
+def test_bad_config_fails_before_any_job(tmp_path, overrides, messages):
+    """Every bad value stops `snakemake -n` while the workflow loads, before the DAG is built
+    (no job, no missing kernel markers), with a message naming the key and the value."""
+    write_config(tmp_path, overrides)
+    r = run_smk(tmp_path, "--dry-run")
+    assert r.returncode != 0
+    for message in messages:
+        assert message in r.output, r.output
+    assert "Building DAG of jobs" not in r.output and "MissingInputException" not in r.output, r.output
+    assert not (tmp_path / "results").exists()
+
+
+def test_smallest_fraction_in_the_message_is_accepted(tmp_path):
+    """The smallest fraction the message names selects exactly the 8 corners, and the workflow takes it."""
+    write_config(tmp_path, {"data": {"functions": [1], "n": [4]}, "reduce": {"fractions": [0.5, 0.064]}})
+    r = run_smk(tmp_path, "--dry-run", "--quiet", "rules")
+    assert r.returncode == 0, r.output
+    assert planned(r.output, "reduce") == 1, r.output

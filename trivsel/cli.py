@@ -3,7 +3,7 @@
 The workflow, the benchmarks and CI depend on these names::
 
     trivsel reduce --function 4 --n 16 --fractions 0.5 0.2 0.1 --out DIR
-    trivsel reduce INPUT [--array NAME] --fractions 0.5 0.2 0.1 --out DIR
+    trivsel reduce INPUT [--array NAME] [--volume K] --fractions 0.5 0.2 0.1 --out DIR
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
     trivsel compile [--method paper] [--part 0|1]
 
@@ -37,12 +37,15 @@ def build_parser():
 
     r = sub.add_parser("reduce", help="select points and write the reduced meshes and their errors",
                        description="Reduce a Table-1 function sampled on a grid (--function, --n) or a user "
-                                   "file (.vti/.vtk/.vtu via pyvista, .npz, .csv with x,y,z,value).")
+                                   "file (.vti/.vtk/.vtu via pyvista, .npz, .csv with x,y,z,value, "
+                                   ".nii/.nii.gz NIfTI, .nrrd/.nhdr NRRD).")
     r.add_argument("input", nargs="?", help="data file (omit with --function)")
     r.add_argument("--function", help="Table-1 function: 1-5 or quadratic, saddle, cubic, exponential, "
                                       "trigonometric")
     r.add_argument("--n", type=int, default=16, help="grid intervals per axis for --function (default 16)")
     r.add_argument("--array", help="point-data array / value column of the input file")
+    r.add_argument("--volume", type=int, metavar="K",
+                   help="volume K (0-based) of a 4-D NIfTI or NRRD image (required when it has several)")
     stop = r.add_argument_group("stopping (section 3)")
     stop.add_argument("--fractions", type=float, nargs="+", help="fractions of all points, e.g. 0.5 0.2 0.1")
     stop.add_argument("--count", type=int, help="number of points to select")
@@ -99,6 +102,20 @@ def _progress_line(done, total, e_rms, e_inf, seconds):
     sys.stderr.flush()
 
 
+def _show_stages():
+    """Print the reduction's stage messages (hull, Delaunay, curvature, insertion) on
+    stderr with the time since start, so that long stages are visibly under way."""
+    import logging
+
+    logger = logging.getLogger("trivsel")
+    if not any(getattr(h, "_trivsel_cli", False) for h in logger.handlers):
+        handler = logging.StreamHandler(sys.stderr)
+        handler.setFormatter(logging.Formatter("trivsel [%(relativeCreated)7.0f ms] %(message)s"))
+        handler._trivsel_cli = True
+        logger.addHandler(handler)
+    logger.setLevel(logging.INFO)
+
+
 def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
@@ -110,18 +127,22 @@ def _cmd_reduce(a):
         raise InputError("give either an input file or --function (not both)")
     options = from_namespace(a)
     check_output_dir(a.out, [] if a.input is None else [a.input])  # before any work
+    show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
+    if show:
+        _show_stages()
     if a.function is not None:
         if a.array is not None:
             raise InputError("--array applies to input files, not to --function")
+        if a.volume is not None:
+            raise InputError("--volume applies to input files, not to --function")
         data = sample_grid(resolve_function(a.function), a.n)
     else:
-        data = load(a.input, a.array)
+        data = load(a.input, a.array, volume=a.volume)
     check = None
     if a.check:
         from .mesh import check_mesh
 
         check = check_mesh
-    show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
                     options=options, threads=a.threads, check=check, progress=_progress_line if show else None)
     out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=[] if a.input is None else [a.input])
@@ -145,14 +166,30 @@ def _cmd_compile(a):
 
 
 def _cmd_compare(a):
-    from .regression import compare_tables, format_mismatches
+    import math
+    import os
 
+    import pandas as pd
+
+    from .regression import IGNORED_COLUMNS, compare_frames, format_mismatches
+
+    for name, tol in (("--rtol", a.rtol), ("--atol", a.atol)):
+        if not (math.isfinite(tol) and tol >= 0):
+            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
+    frames = []
     for path in (a.new, a.golden):
-        import os
-
-        if not os.path.exists(path):
-            raise InputError(f"table {path!r} does not exist")
-    mism = compare_tables(a.new, a.golden, rtol=a.rtol, atol=a.atol)
+        if not os.path.isfile(path):
+            raise InputError(f"table {path!r} " + ("is not a file" if os.path.exists(path) else "does not exist"))
+        try:
+            frames.append(pd.read_csv(path))
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"cannot read table {path!r} as CSV: {first}") from None
+    golden = frames[1]
+    if not [c for c in golden.columns if c not in IGNORED_COLUMNS and pd.api.types.is_numeric_dtype(golden[c])]:
+        raise InputError(f"table {a.golden!r} has no numeric column to compare (columns: "
+                         f"{', '.join(map(str, golden.columns)) or 'none'})")
+    mism = compare_frames(frames[0], golden, rtol=a.rtol, atol=a.atol)
     if mism:
         print(format_mismatches(mism, a.new, a.golden, a.rtol, a.atol))
         return 1

@@ -118,9 +118,18 @@ def sample_grid(function, n: int = 16) -> PointData:
                      meta={"function": num, "n": n})
 
 
+def _real_array(a, name):
+    """``a`` as float64; complex, boolean, text or object data are refused instead of
+    being cast (a cast would drop imaginary parts or reinterpret the data)."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise InputError(f"{name} must be real numbers, got an array of dtype {arr.dtype}")
+    return arr.astype(float, copy=False)
+
+
 def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), name="data"):
     """Wrap a 3-D array of samples (indexed ``[i, j, k]`` = x, y, z) as grid data."""
-    v = np.asarray(values3d, dtype=float)
+    v = _real_array(values3d, "values")
     if v.ndim != 3:
         raise InputError(f"grid values must be a 3-D array, got shape {v.shape}")
     if min(v.shape) < 2:
@@ -145,8 +154,8 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
 
 def points_values(points, values):
     """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
-    p = np.asarray(points, dtype=float)
-    f = np.asarray(values, dtype=float)
+    p = _real_array(points, "points")
+    f = _real_array(values, "values")
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"points must have shape (N, 3), got {p.shape}")
     if f.shape != (p.shape[0],):

@@ -8,7 +8,24 @@ Input formats (:func:`load`):
   scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
-* ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``).
+* ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``);
+* ``.nii`` and ``.nii.gz`` (NIfTI-1/-2, read with nibabel): a grid of the voxel values with
+  ``scl_slope``/``scl_inter`` applied (float64), placed by the image's affine (the sform if
+  its code is set, else the qform, else the voxel sizes ``pixdim`` with the origin at 0, the
+  standard's method 1); coordinates are in the affine's world units (mm), not converted;
+* ``.nrrd`` and ``.nhdr`` (a detached header; read with pynrrd): a grid of the samples as
+  stored (no value mapping), placed by ``space directions`` and ``space origin``, or else by
+  ``spacings`` (1 where unknown) with the origin at 0.
+
+NIfTI and NRRD images keep their exact geometry: an axis that runs backwards (a negative step)
+is flipped and a permutation of the axes is undone, so the spacing is positive and every voxel
+keeps the world coordinate the file gives it; an oblique (rotated) image is refused.  A 4-D
+image (a 4th axis of more than one volume: NIfTI's 4th dimension, NRRD's one non-spatial axis)
+needs ``volume=K`` (``--volume K``).  In the output meshes, ``original_index`` of a NIfTI or
+NRRD point is its voxel's index into the file's 3-D voxel array in Fortran order (the first
+axis fastest, as stored, and as a VTK point id counts), within the chosen volume:
+``value == data[..., K].ravel(order="F")[original_index]`` for nibabel's ``get_fdata()`` or
+pynrrd's array (with the non-spatial axis last).
 
 Outputs (:func:`write_outputs`) go first to a temporary folder inside the target
 and are moved into place only when all of them are complete, so a failure never
@@ -18,7 +35,10 @@ replaces exactly the files of the previous one and never touches an input.
 
 from __future__ import annotations
 
+import inspect
 import json
+import logging
+import numbers
 import os
 import shutil
 import tempfile
@@ -125,22 +145,240 @@ def _read_vtk(p, array):
     return scattered(np.asarray(mesh.points, float), vals, name=p.stem)
 
 
-#: File suffix -> reader ``(path, array) -> PointData``; :func:`load` dispatches on it.
+def _one_line(exc) -> str:
+    """An exception's message on one line (some readers' messages span several)."""
+    return " ".join(str(exc).split()) or type(exc).__name__
+
+
+def _stem(p) -> str:
+    """The file name without its registered suffix (``brain.nii.gz`` -> ``brain``)."""
+    suffix = _suffix(p)
+    return p.name[: -len(suffix)] if suffix and p.name.lower().endswith(suffix) else p.stem
+
+
+def _no_array(p, array):
+    if array is not None:
+        raise InputError(f"--array {array!r} does not apply to {str(p)!r}: the image holds one value per voxel")
+
+
+def _check_voxel_dtype(p, dtype):
+    """Real scalar voxels only (integers or floats): complex, colour and other kinds are refused."""
+    dtype = np.dtype(dtype)
+    if dtype.kind not in "iuf":
+        raise InputError(f"{str(p)!r} holds voxels of type {dtype} (complex, colour or non-numeric); "
+                         "need real scalar values")
+
+
+def _volume_index(p, shape, volume, file_shape=None):
+    """The index of the volume to read from an image of ``shape`` (three spatial axes first, then
+    one axis of volumes; further axes must have length 1).
+
+    One-line InputError for fewer than 3 dimensions, fewer than 2 voxels on a spatial axis,
+    more than one axis of volumes, several volumes and no ``volume``, or ``volume`` out of range;
+    they quote ``file_shape`` (the shape in the file's axis order; default ``shape``).
+    """
+    shape = tuple(int(s) for s in shape)
+    told = shape if file_shape is None else tuple(int(s) for s in file_shape)
+    if len(shape) < 3:
+        raise InputError(f"{str(p)!r} is a {len(told)}-D image of shape {told}: need a 3-D volume")
+    if min(shape[:3]) < 2:
+        raise InputError(f"{str(p)!r} has shape {told}: need at least 2 voxels along each spatial axis")
+    if any(s != 1 for s in shape[4:]):
+        raise InputError(f"{str(p)!r} has shape {told}: more than one non-spatial axis is not supported")
+    n = shape[3] if len(shape) > 3 else 1
+    if volume is None:
+        if n > 1:
+            raise InputError(f"{str(p)!r} is a 4-D image of {n} volumes (shape {told}): choose one with "
+                             f"--volume K, 0 <= K < {n}")
+        return 0
+    if not 0 <= volume < n:
+        raise InputError(f"volume {volume} is out of range: {str(p)!r} holds {n} volume(s), 0 <= K < {n}")
+    return int(volume)
+
+
+#: Largest off-axis entry of a column of an image's index-to-world matrix, relative to the
+#: column's step, that still counts as axis-aligned (the rounding of single-precision headers);
+#: such entries are dropped, moving a voxel by at most this fraction of a step per voxel.
+AXIS_TOLERANCE = 1e-6
+
+
+def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
+    """Grid data from a 3-D voxel array placed by ``world = matrix @ (i, j, k) + offset``.
+
+    ``matrix`` must be a permutation times a diagonal (up to :data:`AXIS_TOLERANCE`): the
+    voxel axes are permuted into x, y, z order and an axis with a negative step is flipped,
+    so that the grid's spacing is positive and each voxel keeps its world coordinate.  The
+    grid points' ``file_index`` is their voxel's Fortran-order index in ``voxels``.
+    Non-finite values are refused naming the voxel; an oblique or singular matrix is refused.
+    """
+    m = np.asarray(matrix, float)
+    t = np.asarray(offset, float)
+    text = np.array2string(m, separator=", ", precision=6).replace("\n", "")
+    if m.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(m)) and np.all(np.isfinite(t))):
+        raise InputError(f"{str(p)!r}: the {what} must be a finite 3 x 3 matrix and offset, got {text} "
+                         f"and {np.array2string(t, separator=', ')}")
+    axis = np.argmax(np.abs(m), axis=0)  # the world axis each voxel axis runs along
+    if sorted(axis.tolist()) != [0, 1, 2]:
+        raise InputError(f"{str(p)!r} is not axis-aligned (oblique or singular {what} {text}); "
+                         "resample it onto an axis-aligned grid")
+    order = np.argsort(axis)  # order[w]: the voxel axis along world axis w
+    step = m[np.arange(3), order]  # signed spacing along world axis w
+    off = m.copy()
+    off[np.arange(3), order] = 0.0
+    size = np.abs(m).max(axis=0)  # each voxel axis's step length
+    if np.any(size == 0):
+        raise InputError(f"{str(p)!r} has a zero voxel size (its {what}: {text})")
+    if np.any(np.abs(off).max(axis=0) > AXIS_TOLERANCE * size):
+        raise InputError(f"{str(p)!r} is oblique (off-axis terms in its {what} {text}); only axis-aligned "
+                         "images (flipped or permuted axes allowed) are supported: resample it first")
+    v = np.asarray(voxels)
+    if not np.all(np.isfinite(v)):
+        bad = np.argwhere(~np.isfinite(v))[0]
+        raise InputError(f"non-finite value {v[tuple(bad)]} at voxel {tuple(int(b) for b in bad)} of {str(p)!r}")
+    ids = np.arange(v.size, dtype=np.int64).reshape(v.shape, order="F")
+    v, ids = v.transpose(order), ids.transpose(order)
+    origin = t.copy()
+    for w in np.flatnonzero(step < 0):
+        v, ids = np.flip(v, w), np.flip(ids, w)
+        origin[w] += step[w] * (v.shape[w] - 1)  # the lowest coordinate along w: the last voxel's
+    data = grid_from_array(v, origin, np.abs(step), name=name)
+    data.file_index = ids.ravel()  # C order over (i, j, k), as grid_from_array numbers the points
+    data.meta.update(meta or {})
+    return data
+
+
+def _read_nifti(p, array, *, volume=None):
+    """A NIfTI image through nibabel (see the module docstring): scaled values (float64),
+    placement by the affine, flipped and permuted axes undone, oblique images refused."""
+    import nibabel as nib
+
+    _no_array(p, array)
+    try:
+        img = nib.load(str(p))
+        shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
+    except Exception as exc:  # nibabel raises many types for damaged files
+        raise InputError(f"cannot read {str(p)!r} as NIfTI: {_one_line(exc)}") from None
+    if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
+        raise InputError(f"{str(p)!r} is not a NIfTI image (nibabel reads it as {type(img).__name__})")
+    _check_voxel_dtype(p, dtype)
+    k = _volume_index(p, shape, volume)
+    if int(hdr["sform_code"]) == 0 and int(hdr["qform_code"]) == 0:
+        # no orientation in the file: the standard's method 1 (voxel sizes, origin at 0), not
+        # nibabel's fall-back affine (which flips x and centres the image)
+        affine = np.diag([*np.asarray(hdr["pixdim"][1:4], float), 1.0])
+    else:
+        affine = np.asarray(img.affine, float)
+    from .resources import check_memory
+
+    check_memory(8.0 * float(np.prod(shape)), f"reading {str(p)!r} (shape {tuple(shape)})")
+    try:
+        values = np.asarray(img.get_fdata(dtype=np.float64))
+    except Exception as exc:  # truncated or corrupt data
+        raise InputError(f"cannot read the voxels of {str(p)!r}: {_one_line(exc)}") from None
+    values = values.reshape(tuple(shape[:3]) + (-1,))[..., k]
+    return _voxel_grid(p, values, affine[:3, :3], affine[:3, 3], "affine", _stem(p),
+                       meta={} if volume is None else {"volume": k})
+
+
+def _nrrd_axes(p, header):
+    """The spatial axes of a NRRD image (in file order) and its one non-spatial axis or None.
+
+    Spatial axes are those with a space direction; without ``space directions``, those of kind
+    ``domain`` or ``space`` when there are three; otherwise the first three.
+    """
+    ndim = len(header["sizes"])
+    dirs = header.get("space directions")
+    kinds = header.get("kinds")
+    if dirs is not None:
+        spatial = [a for a, d in enumerate(dirs) if d is not None and np.all(np.isfinite(np.asarray(d, float)))]
+    elif kinds is not None and sum(str(k).lower() in ("domain", "space") for k in kinds) == 3:
+        spatial = [a for a, k in enumerate(kinds) if str(k).lower() in ("domain", "space")]
+    else:
+        spatial = list(range(min(3, ndim)))
+    if len(spatial) != 3 and ndim >= 3:
+        raise InputError(f"{str(p)!r} has {len(spatial)} spatial axes (of {ndim}): need 3")
+    return spatial, [a for a in range(ndim) if a not in spatial]
+
+
+def _read_nrrd(p, array, *, volume=None):
+    """A NRRD image (``.nrrd``, or a ``.nhdr`` header and its data file) through pynrrd: the
+    samples as stored, placed by ``space directions`` and ``space origin`` or by ``spacings``;
+    flipped and permuted axes undone, oblique images refused."""
+    import nrrd
+
+    _no_array(p, array)
+    try:
+        values, header = nrrd.read(str(p))
+    except Exception as exc:  # pynrrd raises many types: a bad header, truncated data, a missing data file
+        raise InputError(f"cannot read {str(p)!r} as NRRD: {_one_line(exc)}") from None
+    values = np.asarray(values)
+    _check_voxel_dtype(p, values.dtype)
+    spatial, other = _nrrd_axes(p, header)
+    file_shape = values.shape
+    values = np.moveaxis(values, spatial + other, list(range(values.ndim)))
+    k = _volume_index(p, values.shape, volume, file_shape)
+    values = values.reshape(values.shape[:3] + (-1,))[..., k]
+    dirs = header.get("space directions")
+    if dirs is not None:
+        rows = [np.asarray(dirs[a], float) for a in spatial]
+        if any(r.shape != (3,) for r in rows):
+            raise InputError(f"{str(p)!r} has a {rows[0].size}-D space: need a 3-D space")
+        matrix, what = np.stack(rows, axis=1), "space directions (as columns)"
+    else:
+        spacings = np.asarray(header.get("spacings", [np.nan] * len(header["sizes"])), float)[spatial]
+        matrix, what = np.diag(np.where(np.isnan(spacings), 1.0, spacings)), "spacings"
+    origin = np.asarray(header.get("space origin", np.zeros(3)), float)
+    return _voxel_grid(p, values, matrix, origin, what, _stem(p), meta={} if volume is None else {"volume": k})
+
+
+#: File suffix -> reader ``(path, array) -> PointData``; :func:`load` dispatches on it.  A
+#: reader of images with several volumes also takes a keyword-only ``volume``.
 READERS = {".csv": _read_csv, ".npz": _read_npz, ".vti": _read_vtk, ".vtk": _read_vtk, ".vtu": _read_vtk,
-           ".vtp": _read_vtk, ".vts": _read_vtk, ".vtr": _read_vtk}
+           ".vtp": _read_vtk, ".vts": _read_vtk, ".vtr": _read_vtk, ".nii": _read_nifti, ".nii.gz": _read_nifti,
+           ".nrrd": _read_nrrd, ".nhdr": _read_nrrd}
 
 
-def load(path, array: str | None = None) -> PointData:
+def _suffix(p) -> str:
+    """The :data:`READERS` key of a path: a registered double suffix (``.nii.gz``) or the last one."""
+    double = "".join(p.suffixes[-2:]).lower()
+    return double if double in READERS else p.suffix.lower()
+
+
+def load(path, array: str | None = None, *, volume: int | None = None) -> PointData:
     """Read a user file into :class:`~trivsel.data.PointData` by its suffix (:data:`READERS`;
-    see the module docstring)."""
+    see the module docstring).
+
+    Parameters
+    ----------
+    path : str or path-like
+        The input file.
+    array : str, optional
+        The point-data array or value column to reduce (files with named arrays).
+    volume : int, optional
+        The volume of a 4-D NIfTI or NRRD image, ``0 <= volume < n_volumes`` (required
+        when the image has more than one); refused for other formats.
+
+    Raises
+    ------
+    InputError
+        One line naming the file and the problem: a missing or unreadable file, an
+        unsupported suffix, or data the reader refuses.
+    """
     p = Path(path)
     if not p.exists():
         raise InputError(f"input file {str(p)!r} does not exist")
-    reader = READERS.get(p.suffix.lower())
+    logging.getLogger("trivsel").info("reading %s", p)
+    reader = READERS.get(_suffix(p))
     if reader is None:
         raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: "
                          f"read {', '.join(READERS)}")
-    return reader(p, array)
+    if volume is None:
+        return reader(p, array)
+    if isinstance(volume, bool) or not isinstance(volume, numbers.Integral):
+        raise InputError(f"volume must be an integer, got {volume!r}")
+    if "volume" not in inspect.signature(reader).parameters:
+        raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
+    return reader(p, array, volume=int(volume))
 
 
 def save_npz(data: PointData, path):
@@ -164,7 +402,8 @@ def snapshot_to_pyvista(result, snapshot):
 
     Point data: ``value`` (the selected points' own values), ``original_index``
     (the point's id in the input: its row in a ``.csv`` or ``.npz``, its VTK point id
-    in a ``.vti``/``.vtu``; for ``--function`` grids the C-order index over (i, j, k)),
+    in a ``.vti``/``.vtu``, its voxel's Fortran-order index in a NIfTI or NRRD volume;
+    for ``--function`` grids the C-order index over (i, j, k)),
     ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
     and, with ``values="fit"``, ``fitted_value``.
     """

@@ -14,10 +14,12 @@
 from __future__ import annotations
 
 import inspect
+import logging
 import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+from scipy.spatial import QhullError
 
 from . import mesh as _mesh
 from .data import PointData, sample_grid
@@ -27,9 +29,12 @@ from .methods import get_method
 from .norms import error_norms
 from .options import Options, option_fields
 from .selection import candidate_points, count_for_fraction, validate_fractions
-from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles
+from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles, scattered_start
 
 __all__ = ["reduce", "ReductionResult", "Snapshot"]
+
+#: Stage messages (INFO) of long runs: the command line shows them on a terminal.
+log = logging.getLogger("trivsel")
 
 
 @dataclass
@@ -94,7 +99,10 @@ class ReductionResult:
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 
     def errors_frame(self):
-        """One row per snapshot with the columns of ``errors.csv``."""
+        """One row per snapshot with the columns of ``errors.csv``.
+
+        No wall times: two runs with the same input and options give the same table
+        (the times are in ``result.json``: ``snapshots[*].seconds`` and ``timings``)."""
         import pandas as pd
 
         rows = []
@@ -109,7 +117,6 @@ class ReductionResult:
                     "fraction": s.fraction,
                     "n_selected": s.n_selected,
                     **{k: err[k] for k in ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")},
-                    "seconds": round(s.seconds, 4),
                 })
         return pd.DataFrame(rows)
 
@@ -164,6 +171,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     from .resources import MESH_BYTES_PER_POINT, check_memory
 
     check_memory(MESH_BYTES_PER_POINT * float(N), f"reducing {N} points")
+    user_data, user_stop = data, stop
+    data, scaling = _safe_scale(data)
+    stop = scaling.stop_in(stop)
 
     # --- fixed points and the initial triangulation (section 3)
     if data.is_grid:
@@ -171,9 +181,16 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         start_tets = box_tetrahedra(data.shape, opts.boundary_diagonals)
         all_tets = None  # grids: the curvature graph comes from the Kuhn stencil
     else:
-        _, fixed = hull_triangles(data.points)
-        start_tets = fixed[delaunay_tetrahedra(data.points[fixed])]
-        all_tets = delaunay_tetrahedra(data.points) if method.needs_curvature(opts) else None
+        try:
+            log.info("convex hull and start mesh of %d points", N)
+            _, fixed = hull_triangles(data.points)
+            start_tets, fixed = scattered_start(data.points, fixed)
+            if method.needs_curvature(opts):
+                log.info("Delaunay tetrahedra of %d points (the curvature fit's neighbours)", N)
+            all_tets = delaunay_tetrahedra(data.points) if method.needs_curvature(opts) else None
+        except QhullError as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(f"Qhull cannot triangulate these points: {first}") from None
     interior = data.interior_mask()
 
     # --- targets
@@ -193,12 +210,15 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
 
     # --- ranking (sections 2-3)
     t0 = time.perf_counter()
+    if method.needs_curvature(opts):
+        log.info("curvature of %d points (%s)", N, opts.curvature)
     K, order = method.rank(data, cand, opts, tets=all_tets, threads=threads)
+    log.info("inserting up to %d of %d points", targets[-1], N)
     t_curv = time.perf_counter() - t0
 
     # --- insertion with data-dependent swapping (section 4); the mesh grows its
     # capacities and starts again when a run outgrows them
-    run = _Run(data, method, opts, stop, fixed, order, interior, check, progress, t_start)
+    run = _Run(data, method, opts, stop, fixed, order, interior, check, scaling.progress_out(progress), t_start)
     for _ in range(4):
         try:
             run.execute(start_tets, targets)
@@ -212,9 +232,96 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     timings = {"curvature": t_curv, "selection": t_total - t_curv - run.t_errors, "errors": run.t_errors,
                "total": t_total}
     inserted = np.asarray(run.inserted, np.int64)
-    return ReductionResult(data=data, selected=run.snapshots[-1].selected, curvature=K,
-                           order=order if K is not None else inserted, snapshots=run.snapshots,
-                           options={**opts.to_dict(), **stop}, timings=timings, stats=run.stats)
+    return ReductionResult(data=user_data, selected=run.snapshots[-1].selected, curvature=scaling.curvature_out(K),
+                           order=order if K is not None else inserted,
+                           snapshots=[scaling.snapshot_out(s) for s in run.snapshots],
+                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats)
+
+
+#: Coordinate extents within 2**+-SAFE_COORD_EXPONENT (orientation determinants are
+#: cubic in them) and value magnitudes within 2**+-SAFE_VALUE_EXPONENT (sums of squared
+#: residuals) are used as given; others are scaled by a power of two first.
+SAFE_COORD_EXPONENT = 100
+SAFE_VALUE_EXPONENT = 400
+
+
+class _Scaling:
+    """Exact power-of-two scale factors for coordinates (``c``) and values (``v``).
+
+    Squares and products of values near the float limits overflow or underflow (E_RMS
+    becomes inf or 0, every curvature 0, no flip changes an error), and so do the
+    orientation determinants of extreme coordinates.  Multiplying by a power of two
+    is exact, and the method is invariant under it: the curvature ranking (eq. 10
+    scales by ``v / c**2``), the flips (section 4: sums of squared residuals scale by
+    ``v**2``) and the selection are those of the unscaled data, and the errors and
+    fitted values are scaled back exactly.
+    """
+
+    def __init__(self, c=1.0, v=1.0):
+        self.c, self.v = float(c), float(v)
+
+    def stop_in(self, stop):
+        tol = {k: (None if stop[k] is None else stop[k] * self.v) for k in ("tol_rms", "tol_inf")}
+        return {**stop, **tol}
+
+    def progress_out(self, progress):
+        if progress is None or self.v == 1.0:
+            return progress
+        return lambda m, target, e_rms, e_inf, seconds: progress(m, target, e_rms / self.v, e_inf / self.v, seconds)
+
+    def curvature_out(self, K):
+        return K if K is None or (self.c == 1.0 and self.v == 1.0) else K * (self.c * self.c / self.v)
+
+    def snapshot_out(self, s):
+        if self.v == 1.0:
+            return s
+        s.residuals = s.residuals / self.v
+        s.errors = {k: e / self.v for k, e in s.errors.items()}
+        if s.fit is not None:
+            s.fit = {**s.fit, "values": s.fit["values"] / self.v, "residuals": s.fit["residuals"] / self.v,
+                     "errors": {k: e / self.v for k, e in s.fit["errors"].items()}}
+        return s
+
+
+def _exponent(size):
+    """``round(log2(size))``, or None for 0 (and non-finite) sizes."""
+    return int(np.round(np.log2(size))) if np.isfinite(size) and size > 0.0 else None
+
+
+def _safe_scale(data):
+    """``data`` with coordinates and values scaled into the safe range (a copy, when
+    needed), and the :class:`_Scaling` that maps the results back.
+
+    One common factor when it brings both the coordinate extent and the values into
+    the safe range: the graph of ``f`` then only changes in size, so every curvature
+    of section 2 scales alike and the ranking is that of the unscaled data.  Otherwise
+    (say coordinates near 1e300 and values near 1e-300) each gets its own factor.
+    """
+    extent = float(np.max(np.ptp(data.points, axis=0))) if data.n_points else 0.0
+    ec = _exponent(extent)
+    ev = _exponent(float(np.max(np.abs(data.values))) if data.n_points else 0.0)
+
+    def safe(shift=0):
+        return ((ec is None or abs(ec - shift) <= SAFE_COORD_EXPONENT)
+                and (ev is None or abs(ev - shift) <= SAFE_VALUE_EXPONENT))
+
+    if safe():
+        return data, _Scaling()
+    shift = ec if ec is not None and abs(ec) > SAFE_COORD_EXPONENT else ev
+    if safe(shift):
+        c = v = float(np.ldexp(1.0, -shift))
+    else:
+        c = float(np.ldexp(1.0, -ec)) if ec is not None and abs(ec) > SAFE_COORD_EXPONENT else 1.0
+        v = float(np.ldexp(1.0, -ev)) if ev is not None and abs(ev) > SAFE_VALUE_EXPONENT else 1.0
+    changes = {}
+    if c != 1.0:
+        changes["points"] = data.points * c
+        if data.is_grid:
+            changes["origin"] = np.asarray(data.origin, float) * c
+            changes["spacing"] = np.asarray(data.spacing, float) * c
+    if v != 1.0:
+        changes["values"] = data.values * v
+    return replace(data, **changes), _Scaling(c, v)
 
 
 def _options(options, overrides):
@@ -227,6 +334,12 @@ def _options(options, overrides):
     if unknown:
         raise TypeError(f"reduce() got an unexpected keyword argument {unknown[0]!r}")
     return (replace(options, **overrides) if overrides else options).resolve()
+
+
+#: Target wall time of one call into the compiled insertion loop (see ``_Run.execute``).
+CHUNK_SECONDS = 0.25
+#: A fixed number of insertions per call instead (tests: the result must not depend on it).
+CHUNK_STEP = None
 
 
 class _Run:
@@ -265,6 +378,12 @@ class _Run:
         e = error_norms(tm.residuals()[0], self.interior)
         return (tol_rms is not None and e["E_rms"] <= tol_rms) or (tol_inf is not None and e["E_inf"] <= tol_inf)
 
+    def _compiled_tolerance_met(self, tm, stop_tol):
+        """The compiled loops' own stopping test, on their running sums."""
+        if stop_tol >= 0.0 and np.sqrt(max(tm.sse_sum, 0.0) / float(self.data.n_points)) <= stop_tol:
+            return True
+        return self.stop["tol_inf"] is not None and tm.n_above_tol_inf == 0
+
     def execute(self, start_tets, targets):
         data, N, method, order = self.data, self.data.n_points, self.method, self.order
         tm = self._mesh()
@@ -277,8 +396,13 @@ class _Run:
         self.snapshots = []
         reached_tol = self._tolerance_met(tm)
         last = targets[-1] - n_fixed
-        # the compiled loop runs in chunks so that a progress display can update
-        step = max(1, last // 200) if self.progress is not None else max(last, 1)
+        # The compiled loop runs in chunks of about CHUNK_SECONDS, so that Ctrl-C (which
+        # Python sees only between chunks) stops the run promptly and a progress display
+        # updates.  A run's result does not depend on where the chunks end.
+        step = CHUNK_STEP or 16
+        # with a progress display, also at least about 200 updates
+        most = max(1, last // 200) if self.progress is not None else None
+        step = min(step, most) if most else step
         for target in targets:
             need = target - n_fixed
             if pos < need and not reached_tol:
@@ -289,9 +413,16 @@ class _Run:
                         self.check(tm)
                 while pos < need:
                     chunk_end = min(need, pos + step)
+                    t_chunk = time.perf_counter()
                     new_pos, new = method.advance(tm, order, pos, chunk_end, stop_tol, n_fixed)
+                    if not CHUNK_STEP:
+                        took = time.perf_counter() - t_chunk
+                        step = int(min(max(step * CHUNK_SECONDS / max(took, 1e-6), 16), 4 * step))
+                        step = min(step, most) if most else step
                     inserted.extend(np.asarray(new).tolist())
-                    stalled = new_pos < chunk_end  # tolerance met, or nothing left to improve
+                    # tolerance met, or nothing left to improve (the paper's loop tests the
+                    # tolerance after an insertion, so a chunk's last one is tested here)
+                    stalled = new_pos < chunk_end or self._compiled_tolerance_met(tm, stop_tol)
                     pos = new_pos
                     if self.progress is not None:
                         self.progress(n_fixed + pos, n_fixed + last, float(np.sqrt(max(tm.sse_sum, 0.0) / N)),

@@ -56,10 +56,17 @@ for _perm in itertools.permutations(range(3)):
 _KUHN_OFFSETS = np.array(_KUHN_OFFSETS)  # (6, 4, 3)
 
 
-def orient3d_float(p, tets):
-    """Signed volume times 6 of each tetrahedron (float; for checks, not predicates)."""
-    a, b, c, d = (p[tets[:, i]] for i in range(4))
-    return np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)
+def orient3d_float(p, tets, chunk: int = 1 << 20):
+    """Signed volume times 6 of each tetrahedron (float; for checks, not predicates).
+
+    In chunks of ``chunk`` tetrahedra: the temporaries of all at once would take
+    about 200 bytes per tetrahedron."""
+    tets = np.asarray(tets)
+    out = np.empty(len(tets))
+    for s in range(0, len(tets), chunk):
+        a, b, c, d = (p[tets[s:s + chunk, i]] for i in range(4))
+        out[s:s + chunk] = np.einsum("ij,ij->i", np.cross(b - a, c - a), d - a)
+    return out
 
 
 def kuhn_tetrahedra(shape, mirror_x: bool = False) -> np.ndarray:
@@ -97,6 +104,7 @@ def delaunay_tetrahedra(points) -> np.ndarray:
     """
     tri = Delaunay(np.asarray(points, float))
     tets = tri.simplices.astype(np.int64)
+    del tri  # Qhull's output (neighbours, facet equations) is as large again
     vol = orient3d_float(np.asarray(points, float), tets)
     neg = vol < 0
     tets[neg] = tets[neg][:, [0, 2, 1, 3]]

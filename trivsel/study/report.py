@@ -417,17 +417,20 @@ def explain_deviations(table: pd.DataFrame, tol: float = 0.10, n: int | None = N
     return out
 
 
-def _timings(errors: pd.DataFrame, results: list[dict]) -> pd.DataFrame:
-    """Per-function run times: the reduce time from errors.csv (largest 'seconds')
-    and, when result.json has them, its numeric top-level timings."""
+def _timings(results: list[dict]) -> pd.DataFrame:
+    """Per-function run times from result.json: the reduce time (the largest 'seconds'
+    of its snapshots; errors.csv has no times, so that two runs compare equal) and its
+    numeric top-level timings."""
     rows = {}
-    if "seconds" in errors.columns:
-        for fn, grp in errors.groupby("function"):
-            rows.setdefault(int(fn), {})["reduce seconds"] = float(grp["seconds"].max())
     for res in results:
         fn = res.get("function")
+        if fn is None:
+            continue
+        seconds = [s["seconds"] for s in res.get("snapshots", []) if isinstance(s, dict) and "seconds" in s]
+        if seconds:
+            rows.setdefault(int(fn), {})["reduce seconds"] = float(max(seconds))
         t = res.get("timings")
-        if fn is None or not isinstance(t, dict):
+        if not isinstance(t, dict):
             continue
         for k, v in t.items():
             if isinstance(v, (int, float)) and not isinstance(v, bool):
@@ -492,7 +495,7 @@ def write_table1(errors_csvs, out_csv, out_md, result_jsons=(), tol: float = 0.1
             face_points.update({(fn, k): v for k, v in face_points_selected(res).items()})
     ablation = pd.read_csv(ablation_csv) if ablation_csv else None
     md = table1_markdown(table, tol=tol, n=n, options=options or _options_from_results(results),
-                         timings=_timings(errors, results), title=title, face_points=face_points or None,
+                         timings=_timings(results), title=title, face_points=face_points or None,
                          ablation=ablation)
     out_csv, out_md = Path(out_csv), Path(out_md)
     out_csv.parent.mkdir(parents=True, exist_ok=True)

@@ -6,6 +6,7 @@ import dataclasses
 import hashlib
 import importlib.util
 import itertools
+import math
 import numbers
 import re
 from pathlib import Path
@@ -15,6 +16,7 @@ from snakemake.exceptions import WorkflowError
 from trivsel.exceptions import InputError
 from trivsel.methods import get_method
 from trivsel.options import Options, config_schema, option_fields, variant_tag
+from trivsel.selection import count_for_fraction
 
 
 # --- checks the schema cannot make.  JSON Schema counts 16.0 as an integer, so the integer
@@ -90,6 +92,36 @@ FRACTIONS = sorted(set(float(f) for f in config["reduce"]["fractions"]), reverse
 FRACTION_LABELS = [f"{f:g}" for f in FRACTIONS]
 #: Methods of the variants: each gets its kernels compiled once.
 KERNEL_METHODS = sorted({o.method for o in VARIANTS.values()})
+
+
+# --- fractions against the grids (the schema only knows (0, 1]): a fraction counts
+# round(f * (n+1)^3) points, rounded half up (trivsel.selection.count_for_fraction), and a
+# reduction needs at least the 8 fixed corner points of the box and at most the fixed points
+# plus the selectable ones (with `candidates: interior`, the (n-1)^3 interior points), so a
+# fraction outside that range would only fail in its reduce job.
+def check_fractions(key, fractions, ns, candidate_sets=("all",)):
+    for n in ns:
+        N = (n + 1) ** 3
+        for cand in candidate_sets:
+            n_max = N if cand == "all" else 8 + (n - 1) ** 3
+            for f in fractions:
+                m = count_for_fraction(f, N)
+                if m < 8:
+                    raise WorkflowError(
+                        f"config {key}: {f!r} selects {m} of the {N} points of n = {n}, fewer than "
+                        f"the 8 fixed corner points of the box: the smallest fraction for n = {n} "
+                        f"is {8 / N:.3g} (8 / {N})"
+                    )
+                if m > n_max:
+                    raise WorkflowError(
+                        f"config {key}: {f!r} selects {m} of the {N} points of n = {n}, more than "
+                        f"the {n_max} selectable with candidates: {cand} (the 8 corners and "
+                        f"{n_max - 8} candidates): the largest fraction for n = {n} is "
+                        f"{math.floor(1000 * (n_max + 0.499) / N) / 1000:g}"
+                    )
+
+
+check_fractions("reduce: fractions", FRACTIONS, NS, sorted({o.candidates for o in VARIANTS.values()}))
 
 
 wildcard_constraints:
@@ -226,6 +258,10 @@ def figure_mem_mb(wildcards, attempt):
 METHODS_FRACTIONS = sorted(
     set(FRACTIONS) | set(float(f) for f in config["methods"]["fractions"]), reverse=True
 )
+if config["methods"]["activate"]:
+    check_fractions("methods: fractions", METHODS_FRACTIONS, NS)
+if config["scale"]["activate"]:
+    check_fractions("scale: fraction", [config["scale"]["fraction"]], config["scale"]["n"])
 
 
 def methods_targets():

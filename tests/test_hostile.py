@@ -1,0 +1,165 @@
+"""Hostile input, as a new user would try it: every case ends in one line on stderr,
+exit status 2 (or 1 for a failed comparison), and no output folder.
+
+``python tests/test_hostile.py`` prints the matrix (case, exit status, message).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from trivsel.cli import main
+
+FN = ["--function", "4", "--n", "6"]
+
+
+def _write(tmp: Path, name: str, make) -> str:
+    p = tmp / name
+    make(p)
+    return str(p)
+
+
+def _npz(**arrays):
+    return lambda p: np.savez(p, **arrays)
+
+
+def _text(s: str | bytes):
+    return lambda p: (p.write_bytes(s) if isinstance(s, bytes) else p.write_text(s))
+
+
+def _cloud(n=50, seed=0):
+    rng = np.random.default_rng(seed)
+    p = rng.random((n, 3))
+    return p, np.sin(3 * p[:, 0]) + p[:, 1]
+
+
+def _cases(tmp: Path):
+    """(name, argv, expected exit status, a fragment of the one-line message)."""
+    p, f = _cloud()
+    flat = p.copy()
+    flat[:, 2] = 0.5
+    dup = np.concatenate([p, p[:1]])
+    nanv = f.copy()
+    nanv[3] = np.nan
+    out = str(tmp / "out")
+    existing = _write(tmp, "a_file", _text("keep me"))
+    cases = [
+        ("no input and no --function", ["reduce", "--fractions", "0.5", "--out", out], 2, "give either"),
+        ("input and --function", ["reduce", existing, *FN, "--fractions", "0.5", "--out", out], 2, "not both"),
+        ("missing input file", ["reduce", str(tmp / "nope.vti"), "--fractions", "0.5", "--out", out], 2,
+         "does not exist"),
+        ("unsupported suffix", ["reduce", _write(tmp, "x.mnc", _text("x")), "--fractions", "0.5", "--out", out], 2,
+         "unsupported file type"),
+        ("--out is an existing file", ["reduce", *FN, "--fractions", "0.5", "--out", existing], 2, "existing file"),
+        ("--out would hold the input", ["reduce", _write(tmp, "in.npz", _npz(points=p, values=f)),
+                                        "--fractions", "0.5", "--out", str(tmp)], 2, "input"),
+        ("npz without values", ["reduce", _write(tmp, "nov.npz", _npz(points=p)), "--fractions", "0.5",
+                                "--out", out], 2, "values"),
+        ("npz points not N x 3", ["reduce", _write(tmp, "p2.npz", _npz(points=p[:, :2], values=f)),
+                                  "--fractions", "0.5", "--out", out], 2, "points"),
+        ("npz values of another length", ["reduce", _write(tmp, "len.npz", _npz(points=p, values=f[:-1])),
+                                          "--fractions", "0.5", "--out", out], 2, "values"),
+        ("npz of complex values", ["reduce", _write(tmp, "cx.npz", _npz(points=p, values=f + 1j)),
+                                   "--fractions", "0.5", "--out", out], 2, "values"),
+        ("npz that is not a zip", ["reduce", _write(tmp, "junk.npz", _text(b"\x00\x01junk")), "--fractions", "0.5",
+                                   "--out", out], 2, "junk.npz"),
+        ("NaN value", ["reduce", _write(tmp, "nan.npz", _npz(points=p, values=nanv)), "--fractions", "0.5",
+                       "--out", out], 2, "nan"),
+        ("duplicate points", ["reduce", _write(tmp, "dup.npz", _npz(points=dup, values=np.append(f, 0.0))),
+                              "--fractions", "0.5", "--out", out], 2, "duplicate"),
+        ("three points", ["reduce", _write(tmp, "three.npz", _npz(points=p[:3], values=f[:3])), "--fractions", "0.5",
+                          "--out", out], 2, "points"),
+        ("coplanar points", ["reduce", _write(tmp, "flat.npz", _npz(points=flat, values=f)), "--fractions", "0.5",
+                             "--out", out], 2, "coplanar"),
+        ("CSV without z", ["reduce", _write(tmp, "noz.csv", _text("x,y,value\n0,0,1\n")), "--fractions", "0.5",
+                           "--out", out], 2, "z"),
+        ("CSV with text values", ["reduce", _write(tmp, "txt.csv", _text("x,y,z,value\n0,0,0,a\n1,0,0,b\n")),
+                                  "--fractions", "0.5", "--out", out], 2, "txt.csv"),
+        ("unknown --array", ["reduce", _write(tmp, "arr.npz", _npz(points=p, values=f)), "--array", "rho",
+                             "--fractions", "0.5", "--out", out], 2, "rho"),
+        ("--volume on a CSV", ["reduce", _write(tmp, "v.csv", _text("x,y,z,value\n0,0,0,1\n")), "--volume", "1",
+                               "--fractions", "0.5", "--out", out], 2, "volume"),
+        ("fraction 0", ["reduce", *FN, "--fractions", "0", "--out", out], 2, "0"),
+        ("fraction 1.5", ["reduce", *FN, "--fractions", "1.5", "--out", out], 2, "1.5"),
+        ("fraction nan", ["reduce", *FN, "--fractions", "nan", "--out", out], 2, "nan"),
+        ("fraction below the fixed points", ["reduce", *FN, "--fractions", "1e-12", "--out", out], 2, "fixed"),
+        ("fraction not a number", ["reduce", *FN, "--fractions", "half", "--out", out], 2, "half"),
+        ("count 0", ["reduce", *FN, "--count", "0", "--out", out], 2, "count"),
+        ("count above N", ["reduce", *FN, "--count", "100000", "--out", out], 2, "count"),
+        ("no stopping rule", ["reduce", *FN, "--out", out], 2, "fractions"),
+        ("tol_rms inf", ["reduce", *FN, "--tol-rms", "inf", "--out", out], 2, "tol_rms"),
+        ("tol_inf negative", ["reduce", *FN, "--tol-inf", "-1", "--out", out], 2, "tol_inf"),
+        ("grid n = 1", ["reduce", "--function", "4", "--n", "1", "--fractions", "0.5", "--out", out], 2, "n"),
+        ("grid too large for memory", ["reduce", "--function", "4", "--n", "2000", "--fractions", "0.1",
+                                       "--out", out], 2, "GiB"),
+        ("unknown function", ["reduce", "--function", "9", "--fractions", "0.5", "--out", out], 2, "9"),
+        ("unknown method", ["reduce", *FN, "--method", "foo", "--fractions", "0.5", "--out", out], 2, "foo"),
+        ("negative seed", ["reduce", *FN, "--seed", "-1", "--fractions", "0.5", "--out", out], 2, "seed"),
+        ("rel_tol nan", ["reduce", *FN, "--rel-tol", "nan", "--fractions", "0.5", "--out", out], 2, "rel_tol"),
+        ("rel_tol inf", ["reduce", *FN, "--rel-tol", "inf", "--fractions", "0.5", "--out", out], 2, "rel_tol"),
+        ("quantum nan", ["reduce", *FN, "--quantum", "nan", "--fractions", "0.5", "--out", out], 2, "quantum"),
+        ("max_flips negative", ["reduce", *FN, "--max-flips", "-1", "--fractions", "0.5", "--out", out], 2,
+         "max_flips"),
+        ("threads 0", ["reduce", *FN, "--threads", "0", "--fractions", "0.5", "--out", out], 2, "threads"),
+        ("compare: missing table", ["compare", str(tmp / "no.csv"), existing], 2, "does not exist"),
+        ("compare: a folder", ["compare", str(tmp), existing], 2, "not a file"),
+        ("compare: empty table", ["compare", _write(tmp, "e.csv", _text("")), existing], 2, "cannot read"),
+        ("compare: binary junk", ["compare", _write(tmp, "j.csv", _text(b"\xc1\xff\x00junk")), existing], 2,
+         "cannot read"),
+        ("compare: no numeric column", ["compare", existing, existing], 2, "no numeric column"),
+        ("compare: rtol nan", ["compare", existing, existing, "--rtol", "nan"], 2, "--rtol"),
+        ("compare: tables differ", ["compare", _write(tmp, "n.csv", _text("a,b\n1,2\n")),
+                                    _write(tmp, "g.csv", _text("a,b\n1,3\n"))], 1, "b"),
+    ]
+    return cases
+
+
+def _run(argv):
+    err, out = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+        try:
+            code = main(argv)
+        except SystemExit as exc:  # argparse
+            code = exc.code
+    return code, err.getvalue(), out.getvalue()
+
+
+def _names():
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        return [c[0] for c in _cases(Path(d))]
+
+
+@pytest.mark.parametrize("name", _names())
+def test_hostile_case_gives_one_line_and_no_output(tmp_path, name):
+    case = {c[0]: c for c in _cases(tmp_path)}[name]
+    _, argv, expected, fragment = case
+    code, err, out = _run(argv)
+    assert code == expected, (code, err)
+    text = err if expected == 2 else out
+    lines = [x for x in text.strip().splitlines() if x]
+    if expected == 2:
+        assert len(lines) == 1 and lines[0].startswith("trivsel"), err
+        assert "Traceback" not in err
+    assert fragment.lower() in text.lower(), text
+    assert not (tmp_path / "out").exists()
+    assert (tmp_path / "a_file").read_text() == "keep me"
+
+
+if __name__ == "__main__":  # the matrix for notes: case | exit | message
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        print("| case | exit | message |\n|---|---|---|")
+        for name, argv, _, _ in _cases(Path(d)):
+            code, err, out = _run(argv)
+            msg = (err.strip() or out.strip()).splitlines()
+            print(f"| {name} | {code} | {msg[0] if msg else ''} |")
+    sys.exit(0)
