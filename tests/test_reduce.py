@@ -351,3 +351,15 @@ def test_coordinates_and_values_at_opposite_float_limits_give_finite_errors(ce, 
         r = trivsel.reduce(scattered(p * ce, f * ve), fractions=[0.3], method=method, check=check_mesh)
         e = r.snapshots[-1].errors["E_rms"] / ve
         assert np.isfinite(e) and 0.2 * ref < e < 5 * ref
+
+
+def test_scattered_curvature_run_refused_when_delaunay_does_not_fit(monkeypatch):
+    import trivsel.resources as res
+
+    rng = np.random.default_rng(0)
+    p = rng.random((2000, 3))
+    data = scattered(p, p[:, 0])
+    monkeypatch.setattr(res, "available_bytes", lambda: 2000 * 1000)  # the mesh fits, the Delaunay does not
+    with pytest.raises(trivsel.InputError, match=r"Delaunay tetrahedra of 2000 scattered points needs about"):
+        trivsel.reduce(data, fractions=[0.1])
+    assert trivsel.reduce(data, fractions=[0.1], method="greedy").snapshots[-1].n_selected == 200

@@ -23,24 +23,32 @@ the paper (Table 1, figures, comparisons with VTK) live in :mod:`trivsel.study`,
 which the library never imports.
 """
 
-from .data import PointData, grid_from_array, sample_grid, scattered
 from .exceptions import InputError
-from .functions import FUNCTIONS
 
 __version__ = "0.1.0"
 
-_LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"), "ReductionResult": ("reduction", "ReductionResult"),
-         "load": ("io", "load"), "write_outputs": ("io", "write_outputs")}
+# Everything else on first use (PEP 562): ``import trivsel`` loads no numpy, so the
+# command line handles Ctrl-C from its first moments.
+_LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"),
+         "ReductionResult": ("reduction", "ReductionResult"), "load": ("io", "load"),
+         "write_outputs": ("io", "write_outputs"), "PointData": ("data", "PointData"),
+         "grid_from_array": ("data", "grid_from_array"), "sample_grid": ("data", "sample_grid"),
+         "scattered": ("data", "scattered"), "FUNCTIONS": ("functions", "FUNCTIONS")}
+_SUBMODULES = {"cli", "curvature", "data", "exceptions", "fitting", "functions", "io", "mesh", "methods", "norms",
+               "options", "predicates", "reduction", "regression", "resources", "selection", "study",
+               "triangulation"}
 
 
 def __getattr__(name):
-    if name in _LAZY:
-        import importlib
+    import importlib
 
+    if name in _LAZY:
         module, attr = _LAZY[name]
         value = getattr(importlib.import_module(f".{module}", __name__), attr)
         globals()[name] = value
         return value
+    if name in _SUBMODULES:
+        return importlib.import_module(f".{name}", __name__)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 

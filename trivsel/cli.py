@@ -206,12 +206,11 @@ def main(argv=None):
     import signal
     import threading
 
-    parser = build_parser()
-    a = parser.parse_args(argv)
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:  # SIGTERM like Ctrl-C: the outputs stay as they were, the temporaries go
         previous = signal.signal(signal.SIGTERM, _terminate)
     try:
+        a = build_parser().parse_args(argv)  # inside: building the parser imports numpy
         if a.command == "reduce":
             return _cmd_reduce(a)
         if a.command == "compile":

@@ -28,6 +28,7 @@ from .exceptions import InputError, check_threads
 from .methods import get_method
 from .norms import error_norms
 from .options import Options, option_fields
+from .resources import interruptible
 from .selection import candidate_points, count_for_fraction, validate_fractions
 from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles, scattered_start
 
@@ -168,9 +169,11 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if not fractions and count is None and tol_rms is None and tol_inf is None:
         raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
     stop = dict(fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf)
-    from .resources import MESH_BYTES_PER_POINT, check_memory
+    from .resources import DELAUNAY_BYTES_PER_POINT, MESH_BYTES_PER_POINT, check_memory
 
     check_memory(MESH_BYTES_PER_POINT * float(N), f"reducing {N} points")
+    if not data.is_grid and method.needs_curvature(opts):
+        check_memory(DELAUNAY_BYTES_PER_POINT * float(N), f"the Delaunay tetrahedra of {N} scattered points")
     user_data, user_stop = data, stop
     data, scaling = _safe_scale(data)
     stop = scaling.stop_in(stop)
@@ -182,16 +185,18 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         all_tets = None  # grids: the curvature graph comes from the Kuhn stencil
     else:
         try:
+            # Qhull runs for minutes on millions of points: interruptible keeps Ctrl-C prompt
             log.info("convex hull and start mesh of %d points", N)
-            _, fixed = hull_triangles(data.points)
-            start_tets, fixed = scattered_start(data.points, fixed)
+            _, fixed = interruptible(hull_triangles, data.points)
+            start_tets, fixed = interruptible(scattered_start, data.points, fixed)
+            all_tets = None
             if method.needs_curvature(opts):
                 log.info("Delaunay tetrahedra of %d points (the curvature fit's neighbours)", N)
-            all_tets = delaunay_tetrahedra(data.points) if method.needs_curvature(opts) else None
+                all_tets = interruptible(delaunay_tetrahedra, data.points)
         except QhullError as exc:
             first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
             raise InputError(f"Qhull cannot triangulate these points: {first}") from None
-    interior = data.interior_mask()
+    interior = interruptible(data.interior_mask)
 
     # --- targets
     n_fixed = len(fixed)
