@@ -183,7 +183,7 @@ def scattered(points, values, name="data") -> PointData:
     if np.any(counts > 1):
         dup = p[first[np.argmax(counts > 1)]]
         rows = np.flatnonzero(np.all(p == dup, axis=1))
-        raise InputError(f"duplicate point {tuple(dup)} at rows {rows.tolist()}")
+        raise InputError(f"duplicate point ({', '.join(f'{float(c):.17g}' for c in dup)}) at rows {rows.tolist()}")
     centred = p - p.mean(axis=0)
     sv = np.linalg.svd(centred, compute_uv=False)
     if sv[-1] <= 1e-12 * max(sv[0], 1e-300):

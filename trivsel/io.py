@@ -98,21 +98,27 @@ def _read_csv(p, array):
 def _read_npz(p, array):
     """The layout :func:`save_npz` writes: a 3-D ``values`` grid (indexed [i, j, k] = x, y, z)
     with optional ``origin`` and ``spacing``, or ``points`` (N x 3) and 1-D ``values``."""
+    import zipfile
+
+    if not zipfile.is_zipfile(p):
+        raise InputError(f"cannot read {str(p)!r}: not a NumPy .npz archive (a zip of .npy arrays)")
     try:
-        z = np.load(p)
-    except Exception as exc:
-        raise InputError(f"cannot read {str(p)!r}: {exc}") from None
-    key = array or "values"
-    if key not in z:
-        raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
-    v = np.asarray(z[key])
-    name = str(z["name"]) if "name" in z else p.stem
+        with np.load(p) as z:  # allow_pickle=False: object arrays are refused, never unpickled
+            key = array or "values"
+            if key not in z.files:
+                raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
+            arrays = {k: np.asarray(z[k]) for k in (key, "points", "origin", "spacing", "name") if k in z.files}
+    except InputError:
+        raise
+    except Exception as exc:  # damaged members, object arrays
+        raise InputError(f"cannot read {str(p)!r}: {_one_line(exc)}") from None
+    v = arrays[key]
+    name = str(arrays["name"]) if "name" in arrays else p.stem
     if v.ndim == 3:
-        return grid_from_array(v, z["origin"] if "origin" in z else (0, 0, 0),
-                               z["spacing"] if "spacing" in z else (1, 1, 1), name=name)
-    if "points" not in z:
+        return grid_from_array(v, arrays.get("origin", (0, 0, 0)), arrays.get("spacing", (1, 1, 1)), name=name)
+    if "points" not in arrays:
         raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
-    return scattered(z["points"], v, name=name)
+    return scattered(arrays["points"], v, name=name)
 
 
 def _read_vtk(p, array):

@@ -206,7 +206,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     for m in targets:
         if m < n_fixed:
             raise InputError(f"target of {m} points is fewer than the {n_fixed} fixed points "
-                             f"(fractions {fractions}, N = {N})")
+                             f"(fractions {fractions}, N = {N}): the smallest fraction is "
+                             f"{n_fixed / N:.3g}, or give --count {n_fixed} or more")
         if m > n_max:
             raise InputError(f"target of {m} points exceeds the {n_max} selectable points "
                              f"({n_fixed} fixed + {len(cand)} candidates of set {opts.candidates!r})")
