@@ -49,6 +49,9 @@ def main(argv=None):
     ap.add_argument("--grid", type=int, default=128, help="grid intervals n of the f4 run (0: skip)")
     ap.add_argument("--scattered", type=int, default=1_000_000, help="scattered points of the paper run (0: skip)")
     a = ap.parse_args(argv)
+    # a shell starts background jobs with SIGINT ignored, and children inherit that:
+    # restore the default so that the runs measured here see the signal
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     rows = []
     with tempfile.TemporaryDirectory() as d:
         runs = []

@@ -214,6 +214,7 @@ def run_smk(workdir, *args, timeout=300):
     return r
 
 
+@pytest.mark.slow
 def test_ablation_rules_on_a_tiny_config(tmp_path):
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
     cfg["data"].update(functions=[2, 4], n=[4])

@@ -253,6 +253,7 @@ def test_methods_figure_writes_png(tmp_path):
 # --------------------------------------------------------------------------- workflow
 
 
+@pytest.mark.slow
 def test_methods_sweep_config_dry_run(tmp_path):
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
     assert cfg["methods"]["activate"] is False  # the paper's reproduction stays fast
@@ -267,6 +268,7 @@ def test_methods_sweep_config_dry_run(tmp_path):
     assert ["methods_run", "5"] in lines and ["methods_figure", "5"] in lines and ["methods_table", "1"] in lines
 
 
+@pytest.mark.slow
 def test_methods_stage_and_readme_block_for_real(tmp_path):
     """The methods stage on n = 4 for one function, then `readme` rewrites the Table-1 block of the
     README and the methods block of docs/methods.md."""

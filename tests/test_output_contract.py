@@ -96,6 +96,7 @@ def test_sigterm_exits_130_with_one_line(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.slow
 def test_ctrl_c_inside_the_compiled_loop_stops_the_run_there(tmp_path):
     """The insertion loop returns to Python in short chunks, so SIGINT ends the run
     mid-way (not after the whole loop) with one line and exit 130."""
@@ -116,4 +117,21 @@ def test_ctrl_c_inside_the_compiled_loop_stops_the_run_there(tmp_path):
     assert err.strip().splitlines() == ["trivsel: interrupted; the output folder is as it was before this run"]
     reached = int(out.split()[-1]) if out.split() else 0
     assert reached < 0.5 * 41**3 - 8  # it stopped inside the loop, far from the target
+    assert not (tmp_path / "o").exists()
+
+
+def test_python_dash_m_ends_with_130_on_ctrl_c(tmp_path):
+    """``python -m trivsel``: SIGINT during a long stage gives the one line and status 130
+    (not an interpreter that ends itself by the signal)."""
+    p = subprocess.Popen([sys.executable, "-m", "trivsel", "reduce", "--function", "4", "--n", "48",
+                          "--fractions", "0.5", "--progress", "always", "--out", str(tmp_path / "o")],
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+    for line in p.stderr:  # wait for the first stage message
+        if line.startswith("trivsel ["):
+            break
+    p.send_signal(signal.SIGINT)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert err.replace("\r", "\n").strip().splitlines()[-1] == (
+        "trivsel: interrupted; the output folder is as it was before this run")
     assert not (tmp_path / "o").exists()

@@ -92,6 +92,7 @@ def test_table_slopes_ratios_markdown_and_figure(tmp_path):
         scaling_table([dict(method="paper", n=4)])
 
 
+@pytest.mark.slow
 def test_measure_in_a_fresh_process():
     """One real measurement: a child process, warm-up first, memory of that child only."""
     r = measure("greedy", 6, warmup_n=4, timeout=120)
@@ -114,6 +115,7 @@ def run_smk(workdir, *args, timeout=300):
 TARGETS = ["results/report/scaling.csv", "results/report/scaling.md", "results/report/figures/scaling.png"]
 
 
+@pytest.mark.slow
 def test_scale_stage_tiny(tmp_path):
     cfg = yaml.safe_load((REPO / "config.yaml").read_text())
     cfg["data"].update(functions=[4], n=[4])
