@@ -218,7 +218,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     t0 = time.perf_counter()
     if method.needs_curvature(opts):
         log.info("curvature of %d points (%s)", N, opts.curvature)
-    K, order = method.rank(data, cand, opts, tets=all_tets, threads=threads)
+    K, order = interruptible(method.rank, data, cand, opts, tets=all_tets, threads=threads)
     log.info("inserting up to %d of %d points", targets[-1], N)
     t_curv = time.perf_counter() - t0
 
