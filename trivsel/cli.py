@@ -137,7 +137,9 @@ def _cmd_reduce(a):
             raise InputError("--volume applies to input files, not to --function")
         data = sample_grid(resolve_function(a.function), a.n)
     else:
-        data = load(a.input, a.array, volume=a.volume)
+        from .resources import interruptible
+
+        data = interruptible(load, a.input, a.array, volume=a.volume)  # large files: Ctrl-C stays prompt
     check = None
     if a.check:
         from .mesh import check_mesh
