@@ -130,6 +130,7 @@ def test_bad_cli_arguments_one_line_error_no_output(tmp_path, args, message):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.slow
 def test_bad_input_files_one_line_error_no_output(tmp_path):
     data = tmp_path / "data"
     data.mkdir()
@@ -143,6 +144,7 @@ def test_bad_input_files_one_line_error_no_output(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["data"]
 
 
+@pytest.mark.slow
 def test_array_choice_required_when_ambiguous(tmp_path):
     img = pv.ImageData(dimensions=(4, 4, 4))
     img.point_data["a"] = np.arange(64.0)
@@ -168,6 +170,7 @@ def test_compare_command(tmp_path):
     assert p.returncode == 1 and "E_rms" in p.stdout
 
 
+@pytest.mark.slow
 def test_progress_line_on_request_and_quiet_in_logs(tmp_path):
     args = ["reduce", "--function", "4", "--n", "8", "--fractions", "0.3", "0.1"]
     p = _run_cli(*args, "--out", str(tmp_path / "a"), "--progress", "always")

@@ -399,6 +399,7 @@ def test_local_frame_hypersphere_scattered():
     assert el[deep].max() < 0.03 and el[deep].max() < 0.3 * ed[deep].max()
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("function", [1, 2, 4, 5])
 def test_estimators_agree_under_refinement(function):
     """Max |K_local - K_direct| over interior points (f1, f2; the direct fit is exact

@@ -218,6 +218,7 @@ def test_nifti_refusals_are_one_line(tmp_path):
         assert "\n" not in str(info.value) and name in str(info.value)
 
 
+@pytest.mark.slow
 def test_nifti_on_the_command_line(tmp_path):
     import subprocess
     import sys

@@ -219,6 +219,7 @@ def _run_checked(points, values, exact, order, fixed_tets, criterion="rms", swap
     return tm, r
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("seed", range(3))
 @pytest.mark.parametrize("criterion", ["rms", "max", "sse", "sse+2-2"])
 def test_random_order_on_a_grid_checked_after_every_operation(seed, criterion):

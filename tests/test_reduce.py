@@ -271,6 +271,7 @@ print(json.dumps({"compiled": sum(before.values()),
 """
 
 
+@pytest.mark.slow
 def test_compile_kernels_covers_what_a_reduction_compiles(tmp_path):
     """`trivsel compile` (parts 0 and 1, then 2: the drivers) must compile the very signatures
     a reduction needs: with an empty numba cache, after it, a paper and a greedy
