@@ -96,6 +96,12 @@ def test_sigterm_exits_130_with_one_line(tmp_path):
     assert not (tmp_path / "o").exists()
 
 
+def _sigint_default():
+    """In the child: SIGINT as at an interactive terminal.  A test run started in the
+    background by a shell ignores SIGINT, and its children would inherit that."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 @pytest.mark.slow
 def test_ctrl_c_inside_the_compiled_loop_stops_the_run_there(tmp_path):
     """The insertion loop returns to Python in short chunks, so SIGINT ends the run
@@ -108,7 +114,8 @@ def test_ctrl_c_inside_the_compiled_loop_stops_the_run_there(tmp_path):
             "from trivsel.cli import main\n"
             f"sys.exit(main(['reduce', '--function', '4', '--n', '40', '--fractions', '0.5', "
             f"'--out', r'{tmp_path}/o']))\n")
-    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    p = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         preexec_fn=_sigint_default)
     assert p.stdout.readline().strip().isdigit()  # inside the insertion loop
     assert p.stdout.readline().strip().isdigit()  # and a chunk later
     p.send_signal(signal.SIGINT)
@@ -125,7 +132,7 @@ def test_python_dash_m_ends_with_130_on_ctrl_c(tmp_path):
     (not an interpreter that ends itself by the signal)."""
     p = subprocess.Popen([sys.executable, "-m", "trivsel", "reduce", "--function", "4", "--n", "48",
                           "--fractions", "0.5", "--progress", "always", "--out", str(tmp_path / "o")],
-                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+                         stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, preexec_fn=_sigint_default)
     for line in p.stderr:  # wait for the first stage message
         if line.startswith("trivsel ["):
             break
