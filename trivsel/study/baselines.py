@@ -244,23 +244,23 @@ def _locate(mesh_points, tets, query_points, bary_tol):
     return best_tet, best_bary, inside
 
 
-def _nearest_on_boundary(mesh_points, tets, mesh_values, query_points):
-    """Value of the interpolant at the closest point of the mesh's boundary surface.
+def closest_on_boundary(mesh_points, tets, query_points):
+    """The closest point of a mesh's boundary surface to each query point, as a boundary
+    triangle and barycentric weights in it.
 
-    Returns ``(values, distances)``.
+    Returns ``(triangles, weights, distances)``: (Q, 3) vertex ids, (Q, 3) weights summing
+    to 1, and (Q,) distances.
     """
     import pyvista as pv
 
     P = np.asarray(mesh_points, float)
     tris = boundary_triangles(np.asarray(tets, np.int64))
     faces = np.hstack([np.full((tris.shape[0], 1), 3, np.int64), tris]).ravel()
-    surf = pv.PolyData(P, faces)
     Q = np.asarray(query_points, float)
-    cell, closest = surf.find_closest_cell(Q, return_closest_point=True)
+    cell, closest = pv.PolyData(P, faces).find_closest_cell(Q, return_closest_point=True)
     cell = np.atleast_1d(cell)
     closest = np.atleast_2d(closest)
     a, b, c = (P[tris[cell, i]] for i in range(3))
-    # barycentric coordinates of the closest point in its triangle
     v0, v1, v2 = b - a, c - a, closest - a
     d00 = np.einsum("ij,ij->i", v0, v0)
     d01 = np.einsum("ij,ij->i", v0, v1)
@@ -271,10 +271,18 @@ def _nearest_on_boundary(mesh_points, tets, mesh_values, query_points):
     den = np.where(den == 0, 1.0, den)
     w1 = (d11 * d20 - d01 * d21) / den
     w2 = (d00 * d21 - d01 * d20) / den
-    w0 = 1.0 - w1 - w2
+    w = np.stack([1.0 - w1 - w2, w1, w2], axis=1)
+    return tris[cell], w, np.linalg.norm(closest - Q, axis=1)
+
+
+def _nearest_on_boundary(mesh_points, tets, mesh_values, query_points):
+    """Value of the interpolant at the closest point of the mesh's boundary surface.
+
+    Returns ``(values, distances)``.
+    """
+    tri, w, dist = closest_on_boundary(mesh_points, tets, query_points)
     fv = np.asarray(mesh_values, float)
-    vals = w0 * fv[tris[cell, 0]] + w1 * fv[tris[cell, 1]] + w2 * fv[tris[cell, 2]]
-    dist = np.linalg.norm(closest - Q, axis=1)
+    vals = w[:, 0] * fv[tri[:, 0]] + w[:, 1] * fv[tri[:, 1]] + w[:, 2] * fv[tri[:, 2]]
     return vals, dist
 
 
