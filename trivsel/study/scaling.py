@@ -173,7 +173,8 @@ def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads
     data = sample_grid(function, int(n))
     warmup_peak = _self_peak_mb()
     reset = _reset_peak()
-    base = _proc_status_mb("VmRSS") if reset else warmup_peak
+    # the mark just set (the resident size at the reset): the run's peak can only be above it
+    base = _proc_status_mb("VmHWM") if reset else warmup_peak
     t0 = time.perf_counter()
     n_sel = _one_run(method, data, fraction, seed, threads)
     seconds = time.perf_counter() - t0
