@@ -16,7 +16,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .exceptions import InputError
+from .exceptions import InputError, one_line
 
 __all__ = ["main", "build_parser"]
 
@@ -185,8 +185,7 @@ def _cmd_compare(a):
         try:
             frames.append(pd.read_csv(path))
         except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"cannot read table {path!r} as CSV: {first}") from None
+            raise InputError(f"cannot read table {path!r} as CSV: {one_line(exc, first=True)}") from None
     golden = frames[1]
     if not [c for c in golden.columns if c not in IGNORED_COLUMNS and pd.api.types.is_numeric_dtype(golden[c])]:
         raise InputError(f"table {a.golden!r} has no numeric column to compare (columns: "

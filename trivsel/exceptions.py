@@ -16,3 +16,15 @@ def check_threads(threads):
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
         raise InputError(f"threads must be an integer >= 1, got {threads!r}")
     return int(threads)
+
+
+def one_line(exc, *, first: bool = False) -> str:
+    """An exception's message on one line, for an :class:`InputError` that quotes it.
+
+    ``first``: only its first line (Qhull's and pandas' messages go on for a page);
+    otherwise all of it, joined (some file readers break one sentence over lines).
+    """
+    text = str(exc).strip()
+    if first:
+        text = text.splitlines()[0] if text else ""
+    return " ".join(text.split()) or type(exc).__name__

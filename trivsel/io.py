@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from .data import PointData, grid_from_array, scattered
-from .exceptions import InputError
+from .exceptions import InputError, one_line
 
 __all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_pyvista",
            "fraction_label"]
@@ -111,7 +111,7 @@ def _read_npz(p, array):
     except InputError:
         raise
     except Exception as exc:  # damaged members, object arrays
-        raise InputError(f"cannot read {str(p)!r}: {_one_line(exc)}") from None
+        raise InputError(f"cannot read {str(p)!r}: {one_line(exc)}") from None
     v = arrays[key]
     name = str(arrays["name"]) if "name" in arrays else p.stem
     if v.ndim == 3:
@@ -149,11 +149,6 @@ def _read_vtk(p, array):
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
     return scattered(np.asarray(mesh.points, float), vals, name=p.stem)
-
-
-def _one_line(exc) -> str:
-    """An exception's message on one line (some readers' messages span several)."""
-    return " ".join(str(exc).split()) or type(exc).__name__
 
 
 def _stem(p) -> str:
@@ -263,7 +258,7 @@ def _read_nifti(p, array, *, volume=None):
         img = nib.load(str(p))
         shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
     except Exception as exc:  # nibabel raises many types for damaged files
-        raise InputError(f"cannot read {str(p)!r} as NIfTI: {_one_line(exc)}") from None
+        raise InputError(f"cannot read {str(p)!r} as NIfTI: {one_line(exc)}") from None
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise InputError(f"{str(p)!r} is not a NIfTI image (nibabel reads it as {type(img).__name__})")
     _check_voxel_dtype(p, dtype)
@@ -280,7 +275,7 @@ def _read_nifti(p, array, *, volume=None):
     try:
         values = np.asarray(img.get_fdata(dtype=np.float64))
     except Exception as exc:  # truncated or corrupt data
-        raise InputError(f"cannot read the voxels of {str(p)!r}: {_one_line(exc)}") from None
+        raise InputError(f"cannot read the voxels of {str(p)!r}: {one_line(exc)}") from None
     values = values.reshape(tuple(shape[:3]) + (-1,))[..., k]
     return _voxel_grid(p, values, affine[:3, :3], affine[:3, 3], "affine", _stem(p),
                        meta={} if volume is None else {"volume": k})
@@ -316,7 +311,7 @@ def _read_nrrd(p, array, *, volume=None):
     try:
         values, header = nrrd.read(str(p))
     except Exception as exc:  # pynrrd raises many types: a bad header, truncated data, a missing data file
-        raise InputError(f"cannot read {str(p)!r} as NRRD: {_one_line(exc)}") from None
+        raise InputError(f"cannot read {str(p)!r} as NRRD: {one_line(exc)}") from None
     values = np.asarray(values)
     _check_voxel_dtype(p, values.dtype)
     spatial, other = _nrrd_axes(p, header)

@@ -24,7 +24,7 @@ from scipy.spatial import QhullError
 from . import mesh as _mesh
 from .data import PointData, sample_grid
 from .functions import resolve_function
-from .exceptions import InputError, check_threads
+from .exceptions import InputError, check_threads, one_line
 from .methods import get_method
 from .norms import error_norms
 from .options import Options, option_fields
@@ -194,8 +194,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                 log.info("Delaunay tetrahedra of %d points (the curvature fit's neighbours)", N)
                 all_tets = interruptible(delaunay_tetrahedra, data.points)
         except QhullError as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(f"Qhull cannot triangulate these points: {first}") from None
+            raise InputError(f"Qhull cannot triangulate these points: {one_line(exc, first=True)}") from None
     interior = interruptible(data.interior_mask)
 
     # --- targets
@@ -405,10 +404,9 @@ class _Run:
         # The compiled loop runs in chunks of about CHUNK_SECONDS, so that Ctrl-C (which
         # Python sees only between chunks) stops the run promptly and a progress display
         # updates.  A run's result does not depend on where the chunks end.
-        step = CHUNK_STEP or 16
         # with a progress display, also at least about 200 updates
-        most = max(1, last // 200) if self.progress is not None else None
-        step = min(step, most) if most else step
+        cap = max(1, last // 200) if self.progress is not None else last + 16
+        step = min(CHUNK_STEP or 16, cap)
         for target in targets:
             need = target - n_fixed
             if pos < need and not reached_tol:
@@ -423,8 +421,7 @@ class _Run:
                     new_pos, new = method.advance(tm, order, pos, chunk_end, stop_tol, n_fixed)
                     if not CHUNK_STEP:
                         took = time.perf_counter() - t_chunk
-                        step = int(min(max(step * CHUNK_SECONDS / max(took, 1e-6), 16), 4 * step))
-                        step = min(step, most) if most else step
+                        step = int(min(max(step * CHUNK_SECONDS / max(took, 1e-6), 16), 4 * step, cap))
                     inserted.extend(np.asarray(new).tolist())
                     # tolerance met, or nothing left to improve (the paper's loop tests the
                     # tolerance after an insertion, so a chunk's last one is tested here)

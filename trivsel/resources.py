@@ -1,5 +1,6 @@
-"""Memory checks before large allocations: a request that cannot fit is refused at once with
-the estimate, instead of failing later with a MemoryError (or swapping the machine to a halt)."""
+"""Resources of a run: memory checks before large allocations (a request that cannot fit is
+refused at once with the estimate, instead of failing later with a MemoryError or swapping the
+machine to a halt), and long calls that Ctrl-C can still interrupt (:func:`interruptible`)."""
 
 from __future__ import annotations
 
