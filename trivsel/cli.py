@@ -6,6 +6,7 @@ The workflow, the benchmarks and CI depend on these names::
     trivsel reduce INPUT [--array NAME] [--volume K] --fractions 0.5 0.2 0.1 --out DIR
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
     trivsel compile [--method paper] [--part 0|1]
+    trivsel convert INPUT OUT.zarr [--chunks 64] [--array NAME] [--volume K]
 
 Bad input gives one line ``trivsel: error: ...`` on stderr, exit status 2 and no
 output files.
@@ -81,6 +82,18 @@ def build_parser():
     c.add_argument("golden")
     c.add_argument("--rtol", type=float, default=1e-6)
     c.add_argument("--atol", type=float, default=0.0)
+
+    v = sub.add_parser("convert", help="copy a volume into a chunked Zarr store that block jobs read by region",
+                       description="Write INPUT (.nii/.nii.gz, .nrrd/.nhdr, .vti, .npy, .zarr or any grid trivsel "
+                                   "reads) as a Zarr array in trivsel's grid order with its exact geometry "
+                                   "(attributes origin, spacing, name); the values keep the file's type when "
+                                   "they are exactly representable in it, else float64.  An existing OUT.zarr "
+                                   "is refused; an interrupted run leaves none.")
+    v.add_argument("input", help="the volume to convert")
+    v.add_argument("output", help="the new Zarr store (*.zarr; must not exist)")
+    v.add_argument("--chunks", type=int, default=64, help="chunk size in points per axis (default 64)")
+    v.add_argument("--array", help="point-data array of a .vti / array of a Zarr group")
+    v.add_argument("--volume", type=int, metavar="K", help="volume K (0-based) of a 4-D NIfTI or NRRD image")
     return parser
 
 
@@ -198,6 +211,17 @@ def _cmd_compare(a):
     return 0
 
 
+def _cmd_convert(a):
+    import time
+
+    from .regions import convert
+
+    t0 = time.perf_counter()
+    out = convert(a.input, a.output, chunks=a.chunks, array=a.array, volume=a.volume)
+    print(f"wrote {out} in {time.perf_counter() - t0:.1f} s", file=sys.stderr)
+    return 0
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
@@ -218,6 +242,8 @@ def main(argv=None):
             return _cmd_compile(a)
         if a.command == "compare":
             return _cmd_compare(a)
+        if a.command == "convert":
+            return _cmd_convert(a)
     except InputError as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2
