@@ -7,6 +7,7 @@ The workflow, the benchmarks and CI depend on these names::
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
     trivsel compile [--method paper] [--part 0|1]
     trivsel convert INPUT OUT.zarr [--chunks 64] [--array NAME] [--volume K]
+    trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-- SNAKEMAKE ARGS]
 
 Bad input gives one line ``trivsel: error: ...`` on stderr, exit status 2 and no
 output files.
@@ -94,6 +95,31 @@ def build_parser():
     v.add_argument("--chunks", type=int, default=64, help="chunk size in points per axis (default 64)")
     v.add_argument("--array", help="point-data array of a .vti / array of a Zarr group")
     v.add_argument("--volume", type=int, metavar="K", help="volume K (0-based) of a 4-D NIfTI or NRRD image")
+
+    b = sub.add_parser("blocks", help="reduce a large grid in blocks with conforming seams (a Snakemake workflow)",
+                       description="Cut the grid into blocks that share faces, reduce every cut line (1-D), "
+                                   "every face (2-D) and every block (3-D, its faces prescribed) to the E_inf "
+                                   "tolerance, and merge: OUT/mesh.pvtu (one piece per block), OUT/mesh.vtu "
+                                   "(merged) and OUT/summary.json.  The jobs run through Snakemake: locally "
+                                   "on -c cores, or on a cluster with Snakemake's arguments after '--', e.g. "
+                                   "-- --executor slurm --workflow-profile workflow/profiles/slurm.  Run again "
+                                   "to resume a killed run.")
+    b.add_argument("input", nargs="?", help="the volume (.zarr, .npy, raw .nrrd/.nhdr, .nii/.nii.gz; others are "
+                                            "read whole: trivsel convert them first); omit with --function")
+    b.add_argument("--function", help="Table-1 function, evaluated block by block (needs no file)")
+    b.add_argument("--n", type=int, help="grid intervals per axis for --function")
+    b.add_argument("--array", help="point-data array / Zarr array of the input")
+    b.add_argument("--volume", type=int, metavar="K", help="volume K (0-based) of a 4-D image")
+    b.add_argument("--config", metavar="FILE.yaml",
+                   help="the settings as YAML keys (input, function, n, array, volume, block, tol_inf, method, "
+                        "merged; see config/blocks.yaml); options given here override them")
+    b.add_argument("--block", type=int, help="grid intervals per block along each axis (e.g. 64)")
+    b.add_argument("--tol-inf", type=float, help="E_inf tolerance every stage meets (so the merged mesh does)")
+    b.add_argument("--method", choices=["paper", "greedy"], help="the 3-D stage's method (default greedy)")
+    b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
+    b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
+    b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
+    b.add_argument("-n", "--dry-run", action="store_true", help="show the jobs and their resources; run nothing")
     return parser
 
 
@@ -222,6 +248,42 @@ def _cmd_convert(a):
     return 0
 
 
+def _cmd_blocks(a, snakemake_args):
+    from .blocks import run_workflow
+
+    config = {}
+    if a.config:
+        config = _read_yaml(a.config)
+    for key in ("input", "function", "n", "array", "volume", "block", "tol_inf", "method"):
+        if getattr(a, key) is not None:
+            config[key] = getattr(a, key)
+    if a.no_merged:
+        config["merged"] = False
+    if config.get("input") is None and config.get("function") is None:
+        raise InputError("give an input volume or --function (and --n)")
+    for key in ("block", "tol_inf"):
+        if config.get(key) is None:
+            raise InputError(f"give --{key.replace('_', '-')} (or `{key}:` in --config)")
+    return run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run)
+
+
+def _read_yaml(path):
+    import yaml
+
+    try:
+        with open(path) as fh:
+            d = yaml.safe_load(fh)
+    except (OSError, yaml.YAMLError) as exc:
+        raise InputError(f"cannot read config {path}: {one_line(exc, first=True)}") from None
+    if not isinstance(d, dict):
+        raise InputError(f"config {path} must be a mapping of settings, got {type(d).__name__}")
+    known = {"input", "function", "n", "array", "volume", "block", "tol_inf", "method", "merged"}
+    unknown = sorted(set(d) - known)
+    if unknown:
+        raise InputError(f"config {path}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")
+    return d
+
+
 def _terminate(signum, frame):
     raise KeyboardInterrupt
 
@@ -235,6 +297,11 @@ def main(argv=None):
     if main_thread:  # SIGTERM like Ctrl-C: the outputs stay as they were, the temporaries go
         previous = signal.signal(signal.SIGTERM, _terminate)
     try:
+        argv = list(sys.argv[1:] if argv is None else argv)
+        passed = []  # `trivsel blocks ... -- ARGS`: ARGS go to Snakemake as they are
+        if argv[:1] == ["blocks"] and "--" in argv:
+            passed = argv[argv.index("--") + 1:]
+            argv = argv[:argv.index("--")]
         a = build_parser().parse_args(argv)  # inside: building the parser imports numpy
         if a.command == "reduce":
             return _cmd_reduce(a)
@@ -244,6 +311,8 @@ def main(argv=None):
             return _cmd_compare(a)
         if a.command == "convert":
             return _cmd_convert(a)
+        if a.command == "blocks":
+            return _cmd_blocks(a, passed)
     except InputError as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2

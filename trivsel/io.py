@@ -301,6 +301,22 @@ def _nrrd_axes(p, header):
     return spatial, [a for a in range(ndim) if a not in spatial]
 
 
+def nrrd_placement(p, header, spatial):
+    """``(matrix, origin, what)``: a NRRD image's index-to-world placement over its spatial
+    axes, from ``space directions`` and ``space origin``, or else from ``spacings`` (1 where
+    unknown) with the origin at 0; ``what`` names the source for error messages."""
+    dirs = header.get("space directions")
+    if dirs is not None:
+        rows = [np.asarray(dirs[a], float) for a in spatial]
+        if any(r.shape != (3,) for r in rows):
+            raise InputError(f"{str(p)!r} has a {rows[0].size}-D space: need a 3-D space")
+        matrix, what = np.stack(rows, axis=1), "space directions (as columns)"
+    else:
+        spacings = np.asarray(header.get("spacings", [np.nan] * len(header["sizes"])), float)[spatial]
+        matrix, what = np.diag(np.where(np.isnan(spacings), 1.0, spacings)), "spacings"
+    return matrix, np.asarray(header.get("space origin", np.zeros(3)), float), what
+
+
 def _read_nrrd(p, array, *, volume=None):
     """A NRRD image (``.nrrd``, or a ``.nhdr`` header and its data file) through pynrrd: the
     samples as stored, placed by ``space directions`` and ``space origin`` or by ``spacings``;
@@ -319,16 +335,7 @@ def _read_nrrd(p, array, *, volume=None):
     values = np.moveaxis(values, spatial + other, list(range(values.ndim)))
     k = _volume_index(p, values.shape, volume, file_shape)
     values = values.reshape(values.shape[:3] + (-1,))[..., k]
-    dirs = header.get("space directions")
-    if dirs is not None:
-        rows = [np.asarray(dirs[a], float) for a in spatial]
-        if any(r.shape != (3,) for r in rows):
-            raise InputError(f"{str(p)!r} has a {rows[0].size}-D space: need a 3-D space")
-        matrix, what = np.stack(rows, axis=1), "space directions (as columns)"
-    else:
-        spacings = np.asarray(header.get("spacings", [np.nan] * len(header["sizes"])), float)[spatial]
-        matrix, what = np.diag(np.where(np.isnan(spacings), 1.0, spacings)), "spacings"
-    origin = np.asarray(header.get("space origin", np.zeros(3)), float)
+    matrix, origin, what = nrrd_placement(p, header, spatial)
     return _voxel_grid(p, values, matrix, origin, what, _stem(p), meta={} if volume is None else {"volume": k})
 
 

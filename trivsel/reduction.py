@@ -30,7 +30,8 @@ from .norms import error_norms
 from .options import Options, option_fields
 from .resources import interruptible
 from .selection import candidate_points, count_for_fraction, validate_fractions
-from .triangulation import box_tetrahedra, cube_corners, delaunay_tetrahedra, hull_triangles, scattered_start
+from .triangulation import (box_tetrahedra, boundary_cone, check_closed_surface, cube_corners, delaunay_tetrahedra,
+                            hull_triangles, scattered_start)
 
 __all__ = ["reduce", "ReductionResult", "Snapshot"]
 
@@ -136,6 +137,15 @@ _STOP_PARAMS = """    data : PointData, int or str
         below the tolerance (or when every candidate is inserted).
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
+    boundary : (m, 3) int array, optional
+        Prescribed boundary triangles of grid data (indices of its points): a closed,
+        consistently oriented triangulation of the box's surface.  Section 3's start
+        with these triangles instead of the 12 of the box: their vertices are fixed,
+        the first interior point (the paper: the largest curvature; greedy: the one
+        nearest the centre) is joined to every triangle, only interior points are
+        inserted and no flip changes the boundary.  A neighbouring box given the same
+        triangles on a shared face meets this mesh conformingly
+        (:mod:`trivsel.blocks`).
     options : Options, optional
         Every choice of the method at once; the keyword options below override its
         fields.
@@ -150,8 +160,8 @@ _STOP_PARAMS = """    data : PointData, int or str
         seconds)`` with the current E_RMS and E_inf over all points."""
 
 
-def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, options=None, threads=1,
-           check=None, progress=None, **option_overrides):
+def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, boundary=None, options=None,
+           threads=1, check=None, progress=None, **option_overrides):
     t_start = time.perf_counter()
     opts = _options(options, option_overrides)
     method = get_method(opts.method)
@@ -179,7 +189,14 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     stop = scaling.stop_in(stop)
 
     # --- fixed points and the initial triangulation (section 3)
-    if data.is_grid:
+    if boundary is not None:
+        if not data.is_grid:
+            raise InputError("a prescribed boundary needs grid data (a .vti, NIfTI, NRRD or array volume)")
+        boundary = _boundary_on_box(data, boundary)
+        fixed = np.unique(boundary)
+        all_tets = start_tets = None  # the cone, once its apex is known
+        opts = replace(opts, boundary_flips=False)
+    elif data.is_grid:
         fixed = cube_corners(data.shape)
         start_tets = box_tetrahedra(data.shape, opts.boundary_diagonals)
         all_tets = None  # grids: the curvature graph comes from the Kuhn stencil
@@ -198,10 +215,14 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     interior = interruptible(data.interior_mask)
 
     # --- targets
-    n_fixed = len(fixed)
+    # a prescribed boundary: only interior points are candidates, and the first of
+    # them (the apex of the start) is fixed too
+    cand = candidate_points(N, fixed, interior, "interior" if boundary is not None else opts.candidates)
+    if boundary is not None and not len(cand):
+        raise InputError(f"a prescribed boundary needs an interior point; the grid {data.shape} has none")
+    n_fixed = len(fixed) + (boundary is not None)
     targets = sorted({count_for_fraction(f, N) for f in fractions} | ({int(count)} if count is not None else set()))
-    cand = candidate_points(N, fixed, interior, opts.candidates)
-    n_max = n_fixed + len(cand)
+    n_max = len(fixed) + len(cand)
     for m in targets:
         if m < n_fixed:
             raise InputError(f"target of {m} points is fewer than the {n_fixed} fixed points "
@@ -218,12 +239,18 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if method.needs_curvature(opts):
         log.info("curvature of %d points (%s)", N, opts.curvature)
     K, order = interruptible(method.rank, data, cand, opts, tets=all_tets, threads=threads)
+    if boundary is not None:
+        apex = int(order[0]) if K is not None else _nearest_centre(data, cand)
+        start_tets = boundary_cone(data.ijk, boundary, apex)
+        fixed = np.append(fixed, apex)
+        order = order[order != apex]
     log.info("inserting up to %d of %d points", targets[-1], N)
     t_curv = time.perf_counter() - t0
 
     # --- insertion with data-dependent swapping (section 4); the mesh grows its
     # capacities and starts again when a run outgrows them
-    run = _Run(data, method, opts, stop, fixed, order, interior, check, scaling.progress_out(progress), t_start)
+    run = _Run(data, method, opts, stop, fixed, order, interior, check, scaling.progress_out(progress), t_start,
+               prescribed=boundary is not None)
     for _ in range(4):
         try:
             run.execute(start_tets, targets)
@@ -241,6 +268,31 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                            order=order if K is not None else inserted,
                            snapshots=[scaling.snapshot_out(s) for s in run.snapshots],
                            options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats)
+
+
+def _boundary_on_box(data, boundary):
+    """The prescribed boundary, checked: a closed surface (:func:`check_closed_surface`)
+    of points on the box's surface whose triangles tile it (their areas, projected on
+    each face's axis, sum to the box's surface area: no gap, no overlap)."""
+    tris = check_closed_surface(boundary, data.n_points)
+    if np.any(data.interior_mask()[tris]):
+        bad = tris[np.flatnonzero(np.any(data.interior_mask()[tris], axis=1))[0]]
+        raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} has a vertex inside the box, "
+                         f"not on its surface")
+    c = data.ijk.astype(float)
+    area2 = np.abs(np.cross(c[tris[:, 1]] - c[tris[:, 0]], c[tris[:, 2]] - c[tris[:, 0]])).sum()
+    nx, ny, nz = (s - 1 for s in data.shape)
+    if area2 != 4.0 * (nx * ny + ny * nz + nx * nz):
+        raise InputError(f"the boundary triangles cover {area2 / 2:g} of the box surface's "
+                         f"{2 * (nx * ny + ny * nz + nx * nz)} (grid units): gaps, overlaps or slanted triangles")
+    return tris
+
+
+def _nearest_centre(data, candidates):
+    """The candidate nearest the centre of the grid (ties: the smallest index)."""
+    centre2 = np.asarray(data.shape, np.int64) - 1  # twice the centre, in grid units
+    d = np.sum((2 * data.ijk[candidates] - centre2) ** 2, axis=1)
+    return int(candidates[np.argmin(d)])
 
 
 #: Coordinate extents within 2**+-SAFE_COORD_EXPONENT (orientation determinants are
@@ -350,8 +402,9 @@ CHUNK_STEP = None
 class _Run:
     """One insertion run to the targets: the mesh, its snapshots and counters."""
 
-    def __init__(self, data, method, opts, stop, fixed, order, interior, check, progress, t_start):
+    def __init__(self, data, method, opts, stop, fixed, order, interior, check, progress, t_start, prescribed=False):
         self.data, self.method, self.opts, self.stop = data, method, opts, stop
+        self.prescribed = prescribed
         self.fixed, self.order, self.interior = fixed, order, interior
         self.check, self.progress, self.t_start = check, progress, t_start
         self.tet_cap = self.pool_cap = None
@@ -392,7 +445,13 @@ class _Run:
     def execute(self, start_tets, targets):
         data, N, method, order = self.data, self.data.n_points, self.method, self.order
         tm = self._mesh()
-        tm.start(start_tets)
+        start_ids = tm.start(start_tets)
+        if self.prescribed:
+            # the cone from the first interior point is section 3's first
+            # triangulation: swap it as after an insertion (section 4)
+            tm.swap(start_ids)
+            if self.check is not None:
+                self.check(tm)
         n_fixed = len(self.fixed)
         stop_tol = -1.0 if self.stop["tol_rms"] is None else float(self.stop["tol_rms"])
         pos = 0  # candidates inserted so far
@@ -410,7 +469,7 @@ class _Run:
         for target in targets:
             need = target - n_fixed
             if pos < need and not reached_tol:
-                if pos == 0:
+                if pos == 0 and not self.prescribed:
                     pos = method.start(tm, order)
                     inserted.extend(order[:pos].tolist())
                     if pos and self.check is not None:

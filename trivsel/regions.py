@@ -473,7 +473,7 @@ def _nrrd_volume(p, array, volume):
     """A NRRD image: raw encoding memory-mapped (by region); any other encoding loaded whole."""
     import nrrd
 
-    from .io import _check_voxel_dtype, _no_array, _nrrd_axes, _stem, _volume_index
+    from .io import _check_voxel_dtype, _no_array, _nrrd_axes, _stem, _volume_index, nrrd_placement
 
     _no_array(p, array)
     try:
@@ -500,7 +500,7 @@ def _nrrd_volume(p, array, volume):
                          f"the header's sizes {sizes} of {dtype} need {count * dtype.itemsize}")
     spatial, other = _nrrd_axes(p, header)
     k = _volume_index(p, [sizes[a] for a in spatial + other], volume, sizes)
-    axes = _VoxelAxes(p, *_nrrd_placement(p, header, spatial), _stem(p), [sizes[a] for a in spatial])
+    axes = _VoxelAxes(p, *nrrd_placement(p, header, spatial), _stem(p), [sizes[a] for a in spatial])
     mm = np.memmap(data, dtype=dtype, mode="r", offset=offset, shape=sizes, order="F")
     pick = {a: (k if i == 0 else 0) for i, a in enumerate(other)}  # io: the first non-spatial axis holds volumes
 
@@ -511,22 +511,6 @@ def _nrrd_volume(p, array, volume):
         return mm[tuple(index)]
 
     return axes.volume(p, read, dtype, _stem(p), {} if volume is None else {"volume": k})
-
-
-def _nrrd_placement(p, header, spatial):
-    """``(matrix, offset, what)``: a NRRD image's index-to-world placement over its spatial
-    axes, as :func:`trivsel.io._read_nrrd` reads it (a copy of its lines: io reads the
-    header and the data in one pynrrd call, so its placement cannot be had without the data)."""
-    dirs = header.get("space directions")
-    if dirs is not None:
-        rows = [np.asarray(dirs[a], float) for a in spatial]
-        if any(r.shape != (3,) for r in rows):
-            raise InputError(f"{str(p)!r} has a {rows[0].size}-D space: need a 3-D space")
-        matrix, what = np.stack(rows, axis=1), "space directions (as columns)"
-    else:
-        spacings = np.asarray(header.get("spacings", [np.nan] * len(header["sizes"])), float)[spatial]
-        matrix, what = np.diag(np.where(np.isnan(spacings), 1.0, spacings)), "spacings"
-    return matrix, np.asarray(header.get("space origin", np.zeros(3)), float), what
 
 
 def _nrrd_data_offset(p, header, data_start):

@@ -22,6 +22,8 @@ import itertools
 import numpy as np
 from scipy.spatial import ConvexHull, Delaunay, QhullError
 
+from .exceptions import InputError
+
 __all__ = [
     "orient3d_float",
     "kuhn_tetrahedra",
@@ -505,3 +507,122 @@ def hull_boundary_mask(points, rtol: float = 1e-12) -> np.ndarray:
         dist = p[s:s + step] @ eq[:, :3].T + eq[:, 3]
         out[s:s + step] = np.any(np.abs(dist) <= tol, axis=1)
     return out
+
+
+def boundary_cone(coords, triangles, apex) -> np.ndarray:
+    """The first triangulation from a prescribed boundary (section 3): ``apex`` joined
+    to every boundary triangle.
+
+    Parameters
+    ----------
+    coords : (N, 3) array
+        Point coordinates: the integer grid coordinates of a grid (the signs are then
+        exact), or float coordinates.
+    triangles : (m, 3) int array
+        A closed, consistently oriented surface around ``apex`` (outward or inward;
+        see :func:`check_closed_surface`).
+    apex : int
+        A point strictly inside the surface, from which every triangle is visible.
+
+    Returns
+    -------
+    (m, 4) int64
+        Positively oriented tetrahedra ``(apex, a, b, c)``, in one order for the
+        surface however its triangles were listed or oriented.
+
+    Raises
+    ------
+    InputError
+        If a triangle is flat or the apex lies in a triangle's plane (the cone would
+        have a flat tetrahedron), or if the cone does not fill the surface's inside
+        once (the triangles do not enclose the apex as a star-shaped surface).
+    """
+    tris = np.asarray(triangles, np.int64)
+    tets = np.empty((len(tris), 4), np.int64)
+    tets[:, 0] = int(apex)
+    tets[:, 1:] = tris
+    c = np.asarray(coords, float)
+    vol = orient3d_float(c, tets)
+    if np.any(vol == 0):
+        bad = tris[np.flatnonzero(vol == 0)[0]]
+        raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} is flat or in the plane of the "
+                         f"first interior point {int(apex)}")
+    # a consistently oriented surface faces the apex one way throughout (either, as
+    # the caller's orientation is not prescribed), unless it is not star-shaped from it
+    neg = vol < 0
+    if neg.any() and not neg.all():
+        bad = tris[np.flatnonzero(neg != (np.count_nonzero(neg) * 2 > len(neg)))[0]]
+        raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} faces the first interior point "
+                         f"{int(apex)} the other way: the surface is not star-shaped from it")
+    if neg.all():
+        tets[:, 2], tets[:, 3] = tris[:, 2], tris[:, 1]
+    # a closed surface around the apex covers every direction once: the solid angles
+    # of its triangles sum to 4 pi exactly when it winds around the apex once
+    total = float(np.sum(_solid_angles(c, tets)))
+    if not np.isclose(total, 4.0 * np.pi, rtol=1e-9):
+        raise InputError(f"the boundary triangles do not enclose the first interior point {int(apex)} once "
+                         f"(solid angle {total / np.pi:.6g} pi, not 4 pi)")
+    # one order whatever the caller's: each triangle rotated to start at its smallest
+    # index (keeping its orientation), the rows sorted, so that the run does not depend
+    # on how the same surface was listed
+    tri = tets[:, 1:]
+    r = np.argmin(tri, axis=1)
+    tri = tri[np.arange(len(tri))[:, None], (r[:, None] + np.arange(3)) % 3]
+    tets[:, 1:] = tri[np.lexsort(tri.T[::-1])]
+    return tets
+
+
+def _solid_angles(c, tets):
+    """Solid angle at vertex 0 of each positively oriented tetrahedron (Van Oosterom & Strackee)."""
+    a, b, d = (c[tets[:, i]] - c[tets[:, 0]] for i in (1, 2, 3))
+    la, lb, ld = (np.linalg.norm(v, axis=1) for v in (a, b, d))
+    num = np.abs(np.einsum("ij,ij->i", a, np.cross(b, d)))
+    den = (la * lb * ld + np.einsum("ij,ij->i", a, b) * ld + np.einsum("ij,ij->i", a, d) * lb
+           + np.einsum("ij,ij->i", b, d) * la)
+    return 2.0 * np.arctan2(num, den)
+
+
+def check_closed_surface(triangles, n_points=None) -> np.ndarray:
+    """``triangles`` as an (m, 3) int64 array after checking that they form a closed,
+    consistently oriented surface: indices in range, no repeated vertex in a
+    triangle, no triangle twice, every edge in exactly two triangles that run along
+    it in opposite directions.
+
+    Raises
+    ------
+    InputError
+        Naming the first bad triangle or edge.
+    """
+    tris = np.asarray(triangles)
+    if tris.ndim != 2 or tris.shape[1] != 3 or len(tris) < 4 or tris.dtype.kind not in "iu":
+        raise InputError(f"boundary must be an (m, 3) integer array of m >= 4 triangles, got "
+                         f"{tris.dtype} array of shape {tris.shape}")
+    tris = tris.astype(np.int64)
+    if n_points is not None and (tris.min() < 0 or tris.max() >= n_points):
+        bad = tris[np.flatnonzero(np.any((tris < 0) | (tris >= n_points), axis=1))[0]]
+        raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} indexes a point outside "
+                         f"0..{n_points - 1}")
+    s = np.sort(tris, axis=1)
+    rep = (s[:, 0] == s[:, 1]) | (s[:, 1] == s[:, 2])
+    if rep.any():
+        raise InputError(f"boundary triangle {tuple(int(v) for v in tris[np.flatnonzero(rep)[0]])} "
+                         f"repeats a vertex")
+    u, cnt = np.unique(s, axis=0, return_counts=True)
+    if np.any(cnt > 1):
+        raise InputError(f"boundary triangle {tuple(int(v) for v in u[np.flatnonzero(cnt > 1)[0]])} "
+                         f"is given twice")
+    # closed and consistently oriented: each directed edge once, and its reverse once
+    directed = np.concatenate([tris[:, [0, 1]], tris[:, [1, 2]], tris[:, [2, 0]]])
+    ud, dcnt = np.unique(directed, axis=0, return_counts=True)
+    if np.any(dcnt > 1):
+        e = ud[np.flatnonzero(dcnt > 1)[0]]
+        raise InputError(f"boundary edge {tuple(int(v) for v in e)} is in more than two triangles, or two "
+                         f"triangles around it are oriented alike")
+    key = ud[:, 0] * (int(ud.max()) + 1) + ud[:, 1]
+    rev = ud[:, 1] * (int(ud.max()) + 1) + ud[:, 0]
+    missing = ~np.isin(rev, key)
+    if missing.any():
+        e = ud[np.flatnonzero(missing)[0]]
+        raise InputError(f"boundary edge {tuple(int(v) for v in e)} has one triangle, not two: the surface "
+                         f"is not closed")
+    return tris

@@ -1,0 +1,210 @@
+"""Blocked reduction (``trivsel blocks``): the price of the seams, large grids in bounded
+memory, a real volume, and the plan of a 1025^3 run.
+
+    python benchmarks/bench_blocks.py seams [--n 128] [--block 32] [--tol 0.002]
+        E_RMS of the blocked result against the unblocked greedy run at the same vertex
+        count (each stage in this process; the target: within 10 %).
+    python benchmarks/bench_blocks.py big [--n 256] [--block 64] [--tol 0.002] [--cores 2]
+        ``trivsel blocks --function 4`` as a whole process: wall time, the largest peak
+        memory of any job (Snakemake's benchmark files), and the merged mesh checked.
+    python benchmarks/bench_blocks.py icbm [--block 64] [--tol 8]
+        The nilearn ICBM152 2009a T1 at 1 mm (197 x 233 x 189), converted to Zarr and
+        reduced in blocks; the merged mesh checked (needs the ``realdata`` extra).
+    python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
+        The jobs and resources of a 1025^3 run (``-n``), and its core-hours estimated from
+        the block jobs' seconds per point of a finished run (FOLDER, e.g. the ``big`` run's).
+
+Outputs go under benchmarks/results/blocks/ (not in git).  The figures of a run on this
+machine are in benchmarks/README.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+RESULTS = Path(__file__).resolve().parent / "results" / "blocks"
+
+
+def _stage_all(vol, plan, tol, method="greedy"):
+    from trivsel.blocks import reduce_block, reduce_line, reduce_plane
+
+    lines = {ln: reduce_line(vol, plan, ln, tol_inf=tol) for ln in plan.lines()}
+    planes = {p: reduce_plane(vol, plan, p, {k: r["kept"] for k, r in lines.items()}, tol_inf=tol)
+              for p in plan.planes()}
+    faces = {p: r["triangles"] for p, r in planes.items()}
+    blocks = [reduce_block(vol, plan, b, faces, tol_inf=tol, method=method) for b in plan.blocks()]
+    tets = np.concatenate([t for t, _ in blocks])
+    sse = sum(r["sse"] for r in lines.values()) + sum(r["sse"] for r in planes.values()) + \
+        sum(s["sse"] for _, s in blocks)
+    e_inf = max(s["max"] for _, s in blocks)
+    return tets, float(np.sqrt(sse / plan.n_points())), e_inf
+
+
+def seams(a):
+    from trivsel import reduce
+    from trivsel.blocks import check_tetrahedra, plan_blocks
+    from trivsel.data import sample_grid
+    from trivsel.regions import open_volume
+
+    vol = open_volume(function=a.function, n=a.n)
+    plan = plan_blocks(vol.shape, a.block)
+    t0 = time.perf_counter()
+    tets, e_rms_b, e_inf_b = _stage_all(vol, plan, a.tol)
+    t_blocked = time.perf_counter() - t0
+    check_tetrahedra(vol.shape, tets)
+    V = len(np.unique(tets))
+    t0 = time.perf_counter()
+    snap = reduce(sample_grid(a.function, a.n), count=V, method="greedy").snapshots[-1]
+    t_unblocked = time.perf_counter() - t0
+    e = snap.errors
+    print(f"f{a.function} on {a.n + 1}^3, blocks of {a.block} intervals ({len(plan.blocks())} blocks), "
+          f"tol_inf {a.tol:g}")
+    print("| run | vertices | E_RMS | E_inf | seconds |\n|---|---|---|---|---|")
+    print(f"| blocked (tolerance) | {V} | {e_rms_b:.4g} | {e_inf_b:.4g} | {t_blocked:.1f} |")
+    print(f"| unblocked greedy (same count) | {snap.n_selected} | {e['E_rms']:.4g} | {e['E_inf']:.4g} | "
+          f"{t_unblocked:.1f} |")
+    print(f"E_RMS blocked / unblocked = {e_rms_b / e['E_rms']:.3f} (target <= 1.10)")
+
+
+def _run_blocks(args, out, cores):
+    cmd = [sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(out), "-c", str(cores)]
+    t0 = time.perf_counter()
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        sys.exit(f"trivsel blocks failed ({r.returncode}):\n{r.stderr[-4000:]}")
+    return wall
+
+
+def job_table(out):
+    """Per job: rule, item, seconds and peak resident MB from Snakemake's benchmark files."""
+    rows = []
+    for tsv in sorted((Path(out) / "benchmarks").rglob("*.tsv")):
+        with open(tsv) as fh:
+            rec = next(csv.DictReader(fh, delimiter="\t"))
+        rule = tsv.parent.name if tsv.parent.name != "benchmarks" else tsv.stem
+        rss = rec.get("max_rss", "NA")
+        rows.append({"rule": rule, "item": tsv.stem, "s": float(rec["s"]),
+                     "max_rss_mb": float(rss) if rss not in ("NA", "-") else float("nan")})
+    return rows
+
+
+def _report_run(out, wall, shape):
+    from trivsel.blocks import check_tetrahedra, item_name, read_config
+
+    summary = json.loads((Path(out) / "summary.json").read_text())
+    rows = job_table(out)
+    peak = max(rows, key=lambda r: np.nan_to_num(r["max_rss_mb"]))
+    _, plan = read_config(out)
+    t0 = time.perf_counter()
+    tets = np.concatenate([np.load(Path(out) / "pieces" / f"{item_name(b)}.npz")["tets"] for b in plan.blocks()])
+    check_tetrahedra(shape, tets)
+    t_check = time.perf_counter() - t0
+    by_rule = {}
+    for r in rows:
+        d = by_rule.setdefault(r["rule"], [0, 0.0, 0.0])
+        d[0] += 1
+        d[1] += r["s"]
+        d[2] = max(d[2], np.nan_to_num(r["max_rss_mb"]))
+    print(f"points {summary['points']}, vertices {summary['vertices']} ({100 * summary['fraction']:.2f} %), "
+          f"tetrahedra {summary['tetrahedra']}, E_RMS {summary['E_rms']:.4g}, E_inf {summary['E_inf']:.4g} "
+          f"(tolerance {summary['tol_inf']:g})")
+    print(f"wall time {wall:.0f} s; merged mesh valid (checked in {t_check:.0f} s)")
+    print("| rule | jobs | job seconds (sum) | largest peak RSS (MB) |\n|---|---|---|---|")
+    for rule, (n, s, m) in by_rule.items():
+        print(f"| {rule} | {n} | {s:.0f} | {m:.0f} |")
+    print(f"largest job: {peak['rule']} {peak['item']} at {peak['max_rss_mb']:.0f} MB (target < 1536 MB)")
+
+
+def big(a):
+    out = RESULTS / f"f{a.function}_n{a.n}_b{a.block}"
+    shutil.rmtree(out, ignore_errors=True)
+    wall = _run_blocks(["--function", str(a.function), "--n", str(a.n), "--block", str(a.block),
+                        "--tol-inf", str(a.tol), "--no-merged"], out, a.cores)
+    _report_run(out, wall, (a.n + 1,) * 3)
+
+
+def icbm(a):
+    sys.path.insert(0, str(Path(__file__).resolve().parent))
+    from bench_realdata import REAL, package_file
+
+    src = package_file(REAL["icbm152"][0], REAL["icbm152"][1])
+    if src is None:
+        sys.exit("needs nilearn (pip install -e '.[realdata]')")
+    RESULTS.mkdir(parents=True, exist_ok=True)
+    store = RESULTS / "icbm152.zarr"
+    if not store.exists():
+        t0 = time.perf_counter()
+        subprocess.run([sys.executable, "-m", "trivsel", "convert", str(src), str(store)], check=True)
+        print(f"converted in {time.perf_counter() - t0:.1f} s")
+    from trivsel.regions import open_volume
+
+    shape = open_volume(store).shape
+    out = RESULTS / f"icbm152_b{a.block}"
+    shutil.rmtree(out, ignore_errors=True)
+    wall = _run_blocks([str(store), "--block", str(a.block), "--tol-inf", str(a.tol)], out, a.cores)
+    print(f"ICBM152 T1 {shape}")
+    _report_run(out, wall, shape)
+
+
+def plan(a):
+    from trivsel.blocks import item_name, plan_blocks, read_config
+
+    out = RESULTS / f"plan_n{a.n}_b{a.block}"
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", str(a.function), "--n", str(a.n), "--block",
+           str(a.block), "--tol-inf", str(a.tol), "--out", str(out), "-n"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(r.stderr[-4000:])
+    text = r.stdout + r.stderr
+    table = [ln for ln in text.splitlines() if ln.split()[:1] and ln.split()[0] in
+             ("job", "kernels", "lines", "plane", "block", "merge", "all", "total")]
+    print("\n".join(table))
+    p = plan_blocks((a.n + 1,) * 3, a.block)
+    pts = sum(int(np.prod([hi - lo for lo, hi in p.block_region(b)])) for b in p.blocks())
+    print(f"{len(p.blocks())} blocks, {len(p.planes())} planes, {len(p.lines())} lines; "
+          f"{pts / 1e9:.2f} G block points")
+    if a.measured:
+        _, mplan = read_config(a.measured)
+        rows = {r["item"]: r for r in job_table(a.measured) if r["rule"] == "block"}
+        secs = sum(rows[item_name(b)]["s"] for b in mplan.blocks())
+        mpts = sum(int(np.prod([hi - lo for lo, hi in mplan.block_region(b)])) for b in mplan.blocks())
+        other = sum(r["s"] for r in job_table(a.measured) if r["rule"] in ("lines", "plane", "merge"))
+        rate = secs / mpts
+        scale = p.n_points() / mplan.n_points()
+        est = (rate * pts + other * scale) / 3600
+        print(f"measured {rate * 1e6:.2f} s per million block points ({a.measured}); estimate "
+              f"{est:.1f} core-hours for the blocks, lines, planes and merge of {a.n + 1}^3 "
+              f"(lines, planes and merge scaled by the points)")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("what", choices=["seams", "big", "icbm", "plan"])
+    ap.add_argument("--function", type=int, default=4)
+    ap.add_argument("--n", type=int)
+    ap.add_argument("--block", type=int)
+    ap.add_argument("--tol", type=float)
+    ap.add_argument("--cores", type=int, default=2)
+    ap.add_argument("--measured", help="plan: a finished run's folder for the seconds per point")
+    a = ap.parse_args()
+    defaults = {"seams": (128, 32, 0.002), "big": (256, 64, 0.002), "icbm": (None, 64, 8.0),
+                "plan": (1024, 128, 0.002)}[a.what]
+    a.n = a.n if a.n is not None else defaults[0]
+    a.block = a.block if a.block is not None else defaults[1]
+    a.tol = a.tol if a.tol is not None else defaults[2]
+    {"seams": seams, "big": big, "icbm": icbm, "plan": plan}[a.what](a)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,305 @@
+"""Blocked reduction (trivsel.blocks) and the prescribed boundary it rests on
+(``reduce(boundary=...)``): conforming seams, the global E_inf tolerance, and the same
+result from any split of the work."""
+
+import json
+import re
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from trivsel import reduce
+from trivsel.blocks import (Plan, block_faces, check_tetrahedra, merge_blocks, plan_blocks, reduce_block,
+                            reduce_line, reduce_plane, run_job, write_config, read_config, item_name)
+from trivsel.data import sample_grid
+from trivsel.exceptions import InputError
+from trivsel.mesh import TetMesh, check_mesh
+from trivsel.triangulation import kuhn_tetrahedra
+
+
+def hull_faces(tets):
+    """The faces of a tetrahedral mesh that are in one tetrahedron, outward."""
+    f = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
+    _, inv, cnt = np.unique(np.sort(f, axis=1), axis=0, return_inverse=True, return_counts=True)
+    return f[cnt[inv.ravel()] == 1]
+
+
+def as_set(tris):
+    return set(map(tuple, np.sort(np.asarray(tris), axis=1).tolist()))
+
+
+class ArrayVolume:
+    """An in-memory volume with the region reader's interface."""
+
+    def __init__(self, values):
+        self.values = values
+        self.shape, self.origin, self.spacing = values.shape, (0.0, 0.0, 0.0), (1.0, 1.0, 1.0)
+        self.reads = []
+
+    def read(self, region):
+        self.reads.append(region)
+        return self.values[tuple(slice(*r) for r in region)]
+
+
+def grid_values(function, n):
+    d = sample_grid(function, n)
+    return d, d.values.reshape(d.shape)
+
+
+def evaluate(d, tets):
+    """E_RMS and E_inf of a mesh over every grid point, independently of how it was made:
+    a fresh mesh state started from the tetrahedra locates every point again."""
+    tm = TetMesh(d.points, d.values, d.ijk)
+    tm.start(tets)
+    check_mesh(tm)
+    r = tm.residuals()[0]
+    return float(np.sqrt(np.mean(r * r))), float(np.max(np.abs(r)))
+
+
+def blocked(vol, plan, tol, method="greedy"):
+    """Every stage in process, in the workflow's order; returns (tets, stats of each stage)."""
+    lines = {ln: reduce_line(vol, plan, ln, tol_inf=tol) for ln in plan.lines()}
+    kept = {ln: r["kept"] for ln, r in lines.items()}
+    planes = {p: reduce_plane(vol, plan, p, kept, tol_inf=tol) for p in plan.planes()}
+    faces = {p: r["triangles"] for p, r in planes.items()}
+    out = [reduce_block(vol, plan, b, faces, tol_inf=tol, method=method) for b in plan.blocks()]
+    return np.concatenate([t for t, _ in out]), (lines, planes, [s for _, s in out])
+
+
+# ----------------------------------------------------------------------------- prescribed boundary
+
+@pytest.mark.parametrize("method", ["paper", "greedy"])
+def test_prescribed_boundary_is_kept(method):
+    d = sample_grid(4, 8)
+    boundary = hull_faces(kuhn_tetrahedra(d.shape))
+    r = reduce(d, tol_inf=0.05, boundary=boundary, method=method, check=check_mesh)
+    s = r.snapshots[-1]
+    assert as_set(hull_faces(s.tets)) == as_set(boundary)  # no boundary flip, no boundary insertion
+    assert s.errors["E_inf"] <= 0.05
+    inserted = r.selected[len(np.unique(boundary)) + 1:]
+    assert d.interior_mask()[inserted].all()  # only interior points are inserted
+    assert evaluate(d, s.tets)[1] == pytest.approx(s.errors["E_inf"])
+
+
+def test_prescribed_boundary_orientation_either_way():
+    d = sample_grid(2, 6)
+    b = hull_faces(kuhn_tetrahedra(d.shape))
+    t1 = reduce(d, count=240, boundary=b).snapshots[-1].tets
+    t2 = reduce(d, count=240, boundary=b[:, [0, 2, 1]]).snapshots[-1].tets
+    assert np.array_equal(t1, t2)
+
+
+@pytest.mark.parametrize("change, message", [
+    (lambda b: b[1:], "is not closed"),
+    (lambda b: np.vstack([b, b[:1]]), "given twice"),
+    (lambda b: np.where(b == b[0, 0], 10**6, b), "outside"),
+    (lambda b: np.vstack([b[:1, [0, 2, 1]], b[1:]]), "oriented alike"),
+    (lambda b: b.astype(float), "integer array"),
+])
+def test_bad_boundary_is_refused(change, message):
+    d = sample_grid(2, 6)
+    b = hull_faces(kuhn_tetrahedra(d.shape))
+    with pytest.raises(InputError, match=message) as e:
+        reduce(d, count=240, boundary=change(b))
+    assert "\n" not in str(e.value)
+
+
+def test_boundary_inside_the_box_is_refused():
+    d = sample_grid(2, 6)
+    inner = sample_grid(2, 4)  # the hull of a smaller box, renumbered into the 7^3 grid
+    b = hull_faces(kuhn_tetrahedra(inner.shape))
+    ijk = np.stack(np.unravel_index(b, inner.shape), axis=-1) + 1
+    b7 = (ijk[..., 0] * 7 + ijk[..., 1]) * 7 + ijk[..., 2]
+    with pytest.raises(InputError, match="inside the box"):
+        reduce(d, count=240, boundary=b7)
+
+
+def test_boundary_needs_a_grid():
+    from trivsel.data import scattered
+
+    rng = np.random.default_rng(0)
+    p = rng.random((50, 3))
+    with pytest.raises(InputError, match="needs grid data"):
+        reduce(scattered(p, p[:, 0]), count=20, boundary=np.array([[0, 1, 2]] * 4))
+
+
+# ----------------------------------------------------------------------------- plan
+
+def test_plan_cuts():
+    plan = plan_blocks((33, 17, 10), 8)
+    assert plan.cuts == ((0, 8, 16, 24, 32), (0, 8, 16), (0, 9))  # 9 - 8 = 1 interval joins the block before
+    assert plan.counts == (4, 2, 1)
+    assert len(plan.blocks()) == 8
+    assert len(plan.planes()) == 5 + 3 + 2
+    assert len(plan.lines()) == 3 * 2 + 5 * 2 + 5 * 3
+    assert plan.block_region((3, 1, 0)) == ((24, 33), (8, 17), (0, 10))
+    assert Plan.from_dict(json.loads(json.dumps(plan.to_dict()))) == plan
+
+
+@pytest.mark.parametrize("shape, block, message", [((2, 9, 9), 4, "at least 3"), ((9, 9, 9), 1, ">= 2"),
+                                                   ((9, 9, 9), 2.5, ">= 2")])
+def test_plan_refuses(shape, block, message):
+    with pytest.raises(InputError, match=message):
+        plan_blocks(shape, block)
+
+
+# ----------------------------------------------------------------------------- blocked reduction
+
+@pytest.mark.parametrize("function, tol", [(4, 0.02), (2, 0.05)])
+def test_blocked_mesh_is_conforming_and_within_tolerance(function, tol):
+    d, f = grid_values(function, 20)
+    vol = ArrayVolume(f)
+    plan = plan_blocks(f.shape, 7)
+    assert plan.counts == (3, 3, 3)
+    tets, (lines, planes, blocks) = blocked(vol, plan, tol)
+    check_tetrahedra(f.shape, tets)  # positive, conforming across seams, fills the box
+    e_rms, e_inf = evaluate(d, tets)
+    assert e_inf <= tol
+    # every point is owned by one stage (the cut points, kept, by none): the stages'
+    # squared residuals add up to the whole mesh's
+    nodes = np.prod([len(c) for c in plan.cuts])
+    own = sum(r["count"] for r in lines.values()) + sum(r["count"] for r in planes.values()) + \
+        sum(s["count"] for s in blocks)
+    assert own + nodes == d.n_points
+    sse = sum(r["sse"] for r in lines.values()) + sum(r["sse"] for r in planes.values()) + \
+        sum(s["sse"] for s in blocks)
+    assert np.sqrt(sse / d.n_points) == pytest.approx(e_rms, rel=1e-9)
+    assert max(s["max"] for s in blocks) == pytest.approx(e_inf, rel=1e-12)
+    # no job read the whole volume
+    assert all(np.prod([b - a for a, b in r]) < f.size for r in vol.reads)
+
+
+def test_one_block_equals_the_unblocked_run_with_the_same_boundary():
+    d, f = grid_values(4, 12)
+    vol = ArrayVolume(f)
+    plan = plan_blocks(f.shape, 64)
+    assert plan.counts == (1, 1, 1)
+    tets, (_, planes, _) = blocked(vol, plan, 0.02)
+    faces = np.concatenate([planes[p]["triangles"] for p in plan.planes()])
+    hull = hull_faces(tets)
+    assert as_set(hull) == as_set(faces)
+    direct = reduce(d, tol_inf=0.02, boundary=hull, method="greedy").snapshots[-1].tets
+    assert np.array_equal(np.sort(np.sort(direct, axis=1), axis=0), np.sort(np.sort(tets, axis=1), axis=0))
+
+
+@pytest.mark.parametrize("method", ["paper", "greedy"])
+def test_blocked_paper_and_greedy(method):
+    d, f = grid_values(2, 12)
+    tets, _ = blocked(ArrayVolume(f), plan_blocks(f.shape, 6), 0.05, method=method)
+    check_tetrahedra(f.shape, tets)
+    assert evaluate(d, tets)[1] <= 0.05
+
+
+def test_check_tetrahedra_finds_a_gap():
+    shape = (4, 4, 4)
+    tets = kuhn_tetrahedra(shape)
+    check_tetrahedra(shape, tets)
+    with pytest.raises(AssertionError, match="fill"):
+        check_tetrahedra(shape, tets[1:])
+    with pytest.raises(AssertionError, match="volume"):
+        check_tetrahedra(shape, np.vstack([tets[:1, [0, 2, 1, 3]], tets[1:]]))
+
+
+# ----------------------------------------------------------------------------- the workflow (trivsel blocks)
+
+def run_blocks(out, *args, timeout=900):
+    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
+           "--tol-inf", "0.01", "--out", str(out), *args]
+    return subprocess.run(cmd, capture_output=True, text=True, timeout=timeout)
+
+
+def result_files(out):
+    """What a blocked run wrote, by relative path: the arrays of its .npz files (wall
+    times left out) and the bytes of the others (logs and Snakemake's records left out)."""
+    files = {}
+    for sub in ("lines", "planes", "pieces"):
+        for p in sorted((out / sub).iterdir()):
+            if p.suffix == ".npz":
+                with np.load(p) as z:
+                    files[f"{sub}/{p.name}"] = {k: z[k].tobytes() for k in z.files if k != "seconds"}
+            else:
+                files[f"{sub}/{p.name}"] = p.read_bytes()
+    for name in ("summary.json", "mesh.pvtu", "mesh.vtu"):
+        files[name] = (out / name).read_bytes()
+    return files
+
+
+@pytest.mark.slow
+def test_workflow_same_result_for_any_number_of_jobs_and_after_a_kill(tmp_path):
+    import os
+    import signal
+    import time
+
+    import pyvista as pv
+
+    r1 = run_blocks(tmp_path / "c1", "-c", "1")
+    assert r1.returncode == 0, r1.stderr[-3000:]
+    r2 = run_blocks(tmp_path / "c2", "-c", "2")
+    assert r2.returncode == 0, r2.stderr[-3000:]
+    one = result_files(tmp_path / "c1")
+    assert one == result_files(tmp_path / "c2")
+
+    summary = json.loads(one["summary.json"])
+    assert summary["E_inf"] <= 0.01 and summary["blocks"] == 8
+    d = sample_grid(4, 16)
+    merged = pv.read(tmp_path / "c1" / "mesh.vtu")
+    tets = merged.point_data["original_index"][merged.cells_dict[pv.CellType.TETRA]]
+    check_tetrahedra(d.shape, tets)
+    assert np.array_equal(merged.points, d.points[merged.point_data["original_index"]])
+    assert evaluate(d, tets) == pytest.approx((summary["E_rms"], summary["E_inf"]), rel=1e-9)
+    assert pv.read(tmp_path / "c1" / "mesh.pvtu").n_cells == summary["tetrahedra"] == len(tets)
+
+    # killed (SIGKILL, the lock left behind) once some blocks are done, then run again
+    out = tmp_path / "killed"
+    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
+           "--tol-inf", "0.01", "--out", str(out), "-c", "1"]
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, start_new_session=True)
+    deadline = time.time() + 600
+    while time.time() < deadline and len(list((out / "pieces").glob("*.npz")) if (out / "pieces").exists() else []) < 2:
+        time.sleep(0.2)
+    os.killpg(proc.pid, signal.SIGKILL)
+    proc.wait()
+    assert not (out / "summary.json").exists()
+    done = len(list((out / "pieces").glob("*.npz")))
+    r3 = run_blocks(out, "-c", "2")
+    assert r3.returncode == 0, r3.stderr[-3000:]
+    assert result_files(out) == one
+    # it resumed: the blocks finished before the kill did not run again
+    assert len(re.findall(r"^rule block:", r3.stderr, flags=re.M)) <= 8 - done + 1, r3.stderr[-3000:]
+
+
+@pytest.mark.slow
+def test_workflow_dry_run_plans_resources(tmp_path):
+    r = run_blocks(tmp_path / "plan", "-n")
+    assert r.returncode == 0, r.stderr[-3000:]
+    text = r.stdout + r.stderr
+    for rule in ("kernels", "lines", "plane", "block", "merge"):
+        assert re.search(rf"^{rule}\s+\d+", text, flags=re.M), text[-3000:]
+    assert "mem_mb=" in text and "runtime=" in text
+    assert not (tmp_path / "plan" / "summary.json").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    ([], "give an input volume or --function"),
+    (["--function", "4", "--n", "16", "--tol-inf", "0.1"], "give --block"),
+    (["--function", "4", "--n", "16", "--block", "4"], "give --tol-inf"),
+    (["--function", "4", "--n", "16", "--block", "1", "--tol-inf", "0.1"], "block size"),
+    (["--function", "4", "--n", "16", "--block", "4", "--tol-inf", "-1"], "tol_inf"),
+    (["--function", "9", "--n", "16", "--block", "4", "--tol-inf", "0.1"], "function"),
+    (["missing.zarr", "--block", "4", "--tol-inf", "0.1"], "missing.zarr"),
+])
+def test_blocks_bad_input(tmp_path, args, message):
+    r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(tmp_path / "o")],
+                       capture_output=True, text=True, timeout=120, cwd=tmp_path)
+    assert r.returncode == 2, r.stderr
+    assert message in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "o" / "summary.json").exists()
+
+
+def test_blocks_refuses_a_folder_with_another_configuration(tmp_path):
+    write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.1})
+    write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.1})  # the same: resumes
+    with pytest.raises(InputError, match="another configuration"):
+        write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.2})
