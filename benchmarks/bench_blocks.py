@@ -1,9 +1,10 @@
 """Blocked reduction (``trivsel blocks``): the price of the seams, large grids in bounded
 memory, a real volume, and the plan of a 1025^3 run.
 
-    python benchmarks/bench_blocks.py seams [--n 128] [--block 32] [--tol 0.002]
+    python benchmarks/bench_blocks.py seams [--n 128] [--block 32] [--tol 0.002] [--input VOL]
         E_RMS of the blocked result against the unblocked greedy run at the same vertex
-        count (each stage in this process; the target: within 10 %).
+        count (each stage in this process; the target: within 10 %), on function 4 or the
+        central (n+1)^3 crop of a volume (e.g. the ``icbm`` run's Zarr store).
     python benchmarks/bench_blocks.py big [--n 256] [--block 64] [--tol 0.002] [--cores 2]
         ``trivsel blocks --function 4`` as a whole process: wall time, the largest peak
         memory of any job (Snakemake's benchmark files), and the merged mesh checked.
@@ -49,13 +50,34 @@ def _stage_all(vol, plan, tol, method="greedy"):
     return tets, float(np.sqrt(sse / plan.n_points())), e_inf
 
 
+class _Crop:
+    """The central ``size``^3 region of a volume, read by region like the volume itself."""
+
+    def __init__(self, vol, size):
+        self.vol = vol
+        self.lo = [max((s - size) // 2, 0) for s in vol.shape]
+        self.shape = tuple(min(size, s) for s in vol.shape)
+
+    def read(self, region):
+        return self.vol.read(tuple((lo + a, lo + b) for lo, (a, b) in zip(self.lo, region)))
+
+
 def seams(a):
     from trivsel import reduce
     from trivsel.blocks import check_tetrahedra, plan_blocks
     from trivsel.data import sample_grid
     from trivsel.regions import open_volume
 
-    vol = open_volume(function=a.function, n=a.n)
+    from trivsel.data import grid_from_array
+
+    if a.input:  # the central (n+1)^3 crop of a volume
+        vol = _Crop(open_volume(a.input), a.n + 1)
+        whole = grid_from_array(vol.read(tuple((0, s) for s in vol.shape)))
+        name = f"{Path(a.input).name}, central crop"
+    else:
+        vol = open_volume(function=a.function, n=a.n)
+        whole = sample_grid(a.function, a.n)
+        name = f"f{a.function}"
     plan = plan_blocks(vol.shape, a.block)
     t0 = time.perf_counter()
     tets, e_rms_b, e_inf_b = _stage_all(vol, plan, a.tol)
@@ -63,10 +85,10 @@ def seams(a):
     check_tetrahedra(vol.shape, tets)
     V = len(np.unique(tets))
     t0 = time.perf_counter()
-    snap = reduce(sample_grid(a.function, a.n), count=V, method="greedy").snapshots[-1]
+    snap = reduce(whole, count=V, method="greedy").snapshots[-1]
     t_unblocked = time.perf_counter() - t0
     e = snap.errors
-    print(f"f{a.function} on {a.n + 1}^3, blocks of {a.block} intervals ({len(plan.blocks())} blocks), "
+    print(f"{name} on {vol.shape}, blocks of {a.block} intervals ({len(plan.blocks())} blocks), "
           f"tol_inf {a.tol:g}")
     print("| run | vertices | E_RMS | E_inf | seconds |\n|---|---|---|---|---|")
     print(f"| blocked (tolerance) | {V} | {e_rms_b:.4g} | {e_inf_b:.4g} | {t_blocked:.1f} |")
@@ -197,6 +219,7 @@ def main():
     ap.add_argument("--tol", type=float)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--measured", help="plan: a finished run's folder for the seconds per point")
+    ap.add_argument("--input", help="seams: a volume (e.g. a .zarr) whose central (n+1)^3 crop is reduced")
     a = ap.parse_args()
     defaults = {"seams": (128, 32, 0.002), "big": (256, 64, 0.002), "icbm": (None, 64, 8.0),
                 "plan": (1024, 128, 0.002)}[a.what]

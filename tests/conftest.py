@@ -6,6 +6,7 @@
 """
 
 import os
+import subprocess
 
 import pytest
 from hypothesis import HealthCheck, settings
@@ -31,3 +32,38 @@ def pytest_collection_modifyitems(config, items):
     for item in items:
         if "slow" in item.keywords:
             item.add_marker(skip)
+
+
+def slurm_answers():
+    """True when a SLURM answers sinfo (e.g. the local one of scripts/slurm-local.sh)."""
+    try:
+        r = subprocess.run(["sinfo", "-h", "-o", "%P %T"], capture_output=True, text=True, timeout=20)
+    except (OSError, subprocess.TimeoutExpired):
+        return False
+    return r.returncode == 0 and bool(r.stdout.strip())
+
+
+@pytest.fixture
+def slurm():
+    """Skip unless a SLURM answers; in CI (TRIVSEL_SLURM_REQUIRED, after scripts/slurm-local.sh
+    start) fail instead, so a SLURM that did not start cannot pass as a skip."""
+    if not slurm_answers():
+        if os.environ.get("TRIVSEL_SLURM_REQUIRED"):
+            pytest.fail("TRIVSEL_SLURM_REQUIRED is set but no SLURM answers `sinfo`")
+        pytest.skip("no SLURM answers `sinfo` (start the local one: scripts/slurm-local.sh start)")
+
+
+def sacct_rows(ids, fields, tries=60):
+    """sacct's rows for SLURM job ``ids`` (``{id: {field: value}}``), once all are COMPLETED
+    or after ``tries`` seconds (sacct lags the end of a job by about a second)."""
+    import time
+
+    cmd = ["sacct", "-X", "-n", "-P", "-j", ",".join(ids), "-o", ",".join(fields)]
+    rows = {}
+    for _ in range(tries):
+        rows = {line.split("|")[0]: dict(zip(fields, line.split("|")))
+                for line in subprocess.run(cmd, capture_output=True, text=True, timeout=60).stdout.splitlines()}
+        if set(rows) == set(ids) and all(row["State"] == "COMPLETED" for row in rows.values()):
+            break
+        time.sleep(1)
+    return rows

@@ -303,3 +303,32 @@ def test_blocks_refuses_a_folder_with_another_configuration(tmp_path):
     write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.1})  # the same: resumes
     with pytest.raises(InputError, match="another configuration"):
         write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.2})
+
+
+@pytest.mark.slurm
+def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
+    """A blocked run through `--executor slurm` and the unchanged workflow profile: every
+    job (kernels, lines, planes, blocks, merge) goes through sbatch, sacct lists each one
+    COMPLETED, and every result equals a local run's."""
+    from pathlib import Path
+
+    from conftest import sacct_rows
+
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    r = run_blocks(tmp_path / "slurm", "--", "--executor", "slurm", "--workflow-profile", str(profile), "--jobs", "4",
+                   "--slurm-init-seconds-before-status-checks", "5")
+    output = r.stdout + r.stderr
+    assert r.returncode == 0, output[-5000:]
+    submitted = dict(re.findall(r"Job (\d+) has been submitted with SLURM jobid (\d+)", output))
+    remote_rules = re.findall(r"^rule (\w+):$", output, flags=re.M)
+    assert submitted and len(submitted) == len(remote_rules), output[-5000:]
+    assert {"kernels", "lines", "plane", "block", "merge"} <= set(remote_rules), remote_rules
+    ids = sorted(submitted.values(), key=int)
+    fields = ["JobID", "JobName", "State", "ExitCode"]
+    rows = sacct_rows(ids, fields)
+    assert set(rows) == set(ids), (ids, rows)
+    assert all(row["State"] == "COMPLETED" and row["ExitCode"] == "0:0" for row in rows.values()), rows
+
+    local = run_blocks(tmp_path / "local", "-c", "2")
+    assert local.returncode == 0, local.stderr[-3000:]
+    assert result_files(tmp_path / "slurm") == result_files(tmp_path / "local")

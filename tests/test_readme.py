@@ -51,6 +51,27 @@ def _cli_lines():
     return lines
 
 
+@pytest.mark.slow
+def test_readme_blocks_example_runs(tmp_path, monkeypatch):
+    """The ```bash block of "Large volumes in blocks" runs and writes the merged mesh and summary."""
+    import json
+
+    from trivsel.cli import main
+
+    lines = [ln.strip() for b in _blocks(_section("Large volumes in blocks"), "bash") for ln in b.splitlines()
+             if ln.strip() and not ln.strip().startswith("#")]
+    assert lines
+    monkeypatch.chdir(tmp_path)
+    for line in lines:
+        argv = shlex.split(line)
+        assert argv[:2] == ["trivsel", "blocks"], line
+        assert main(argv[1:]) == 0, f"README line failed: {line}"
+        out = tmp_path / argv[argv.index("--out") + 1]
+        summary = json.loads((out / "summary.json").read_text())
+        assert summary["E_inf"] <= float(argv[argv.index("--tol-inf") + 1])
+        assert (out / "mesh.pvtu").is_file() and (out / "mesh.vtu").is_file()
+
+
 def test_readme_python_examples_run(tmp_path, monkeypatch, capsys):
     blocks = _blocks(_text(), "python")
     assert blocks, "README.md has no ```python block"

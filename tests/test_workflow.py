@@ -14,6 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
+from conftest import sacct_rows
 
 from trivsel.options import Options, config_schema, option_fields, variant_tag
 from trivsel.study.report import TABLE1_COLUMNS
@@ -404,29 +405,13 @@ def test_smallest_fraction_in_the_message_is_accepted(tmp_path):
     assert planned(r.output, "reduce") == 1, r.output
 
 
-def slurm_answers():
-    """True when a SLURM answers sinfo (e.g. the local one of scripts/slurm-local.sh)."""
-    try:
-        r = subprocess.run(["sinfo", "-h", "-o", "%P %T"], capture_output=True, text=True, timeout=20)
-    except (OSError, subprocess.TimeoutExpired):
-        return False
-    return r.returncode == 0 and bool(r.stdout.strip())
-
-
 @pytest.mark.slurm
-def test_slurm_run_matches_local_run(tmp_path):
+def test_slurm_run_matches_local_run(tmp_path, slurm):
     """Two reductions (n = 4, functions 2 and 4) through `--executor slurm` and the unchanged
     workflow profile: every job goes through sbatch (its SLURM job id in Snakemake's log), sacct
     lists each one as COMPLETED under the run's job name, and the errors.csv files are
     byte-identical to those of a local `-c 2` run of the same configuration."""
-    import os
     import re
-    import time
-
-    if not slurm_answers():
-        if os.environ.get("TRIVSEL_SLURM_REQUIRED"):  # CI, after scripts/slurm-local.sh start
-            pytest.fail("TRIVSEL_SLURM_REQUIRED is set but no SLURM answers `sinfo`")
-        pytest.skip("no SLURM answers `sinfo` (start the local one: scripts/slurm-local.sh start)")
 
     overrides = {"data": {"functions": [2, 4], "n": [4]}}
     targets = [f"results/runs/n4/{PRIMARY}/f{f}/errors.csv" for f in (2, 4)]
@@ -446,13 +431,7 @@ def test_slurm_run_matches_local_run(tmp_path):
 
     ids = sorted(submitted.values(), key=int)
     fields = ["JobID", "JobName", "Comment", "State", "ExitCode", "Partition", "Account", "Elapsed"]
-    cmd = ["sacct", "-X", "-n", "-P", "-j", ",".join(ids), "-o", ",".join(fields)]
-    for _ in range(60):  # sacct lags the end of a job by about a second
-        rows = {line.split("|")[0]: dict(zip(fields, line.split("|")))
-                for line in subprocess.run(cmd, capture_output=True, text=True, timeout=60).stdout.splitlines()}
-        if set(rows) == set(ids) and all(row["State"] == "COMPLETED" for row in rows.values()):
-            break
-        time.sleep(1)
+    rows = sacct_rows(ids, fields)
     print("\n".join(["|".join(fields)] + ["|".join(rows[i][f] for f in fields) for i in ids if i in rows]))
     assert set(rows) == set(ids), (ids, rows)
     assert all(row["State"] == "COMPLETED" and row["ExitCode"] == "0:0" for row in rows.values()), rows

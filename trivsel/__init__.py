@@ -15,6 +15,10 @@ piecewise trilinear approximation*.  Modules follow the paper:
 * :mod:`trivsel.options` - every option, defined once (:class:`Options`);
 * :mod:`trivsel.reduction` - :func:`reduce`, the whole method;
 * :mod:`trivsel.io` - reading user files, writing results;
+* :mod:`trivsel.regions` - volumes read by region (Zarr, ``.npy``, raw NRRD, NIfTI, functions);
+* :mod:`trivsel.faces` - the 1-D and 2-D reductions of a block's lines and faces;
+* :mod:`trivsel.blocks` - large grids in blocks with conforming seams (``trivsel blocks``);
+* :mod:`trivsel.pieces` - partitioned output (``.vtu`` pieces, ``.pvtu``, ``.vtm``, merging);
 * :mod:`trivsel.regression` - comparing error tables against golden ones.
 
 ``import trivsel`` is cheap: :func:`reduce` and :func:`load` import the compiled
@@ -34,9 +38,9 @@ _LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"),
          "write_outputs": ("io", "write_outputs"), "PointData": ("data", "PointData"),
          "grid_from_array": ("data", "grid_from_array"), "sample_grid": ("data", "sample_grid"),
          "scattered": ("data", "scattered"), "FUNCTIONS": ("functions", "FUNCTIONS")}
-_SUBMODULES = {"cli", "curvature", "data", "exceptions", "fitting", "functions", "io", "mesh", "methods", "norms",
-               "options", "predicates", "reduction", "regression", "resources", "selection", "study",
-               "triangulation"}
+_SUBMODULES = {"blocks", "cli", "curvature", "data", "exceptions", "faces", "fitting", "functions", "io", "mesh",
+               "methods", "norms", "options", "pieces", "predicates", "reduction", "regions", "regression",
+               "resources", "selection", "study", "triangulation"}
 
 
 def __getattr__(name):
