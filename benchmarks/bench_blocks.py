@@ -12,7 +12,8 @@ memory, a real volume, and the plan of a 1025^3 run.
         The nilearn ICBM152 2009a T1 at 1 mm (197 x 233 x 189), converted to Zarr and
         reduced in blocks; the merged mesh checked (needs the ``realdata`` extra).
     python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
-        The jobs and resources of a 1025^3 run (``-n``), and its core-hours estimated from
+        The jobs and resources of a 1025^3 run (``-n``; the .pvtu output, no merged .vtu,
+        which would need tens of GB in one job at this size), and its core-hours estimated from
         the block jobs' seconds per point of a finished run (FOLDER, e.g. the ``big`` run's).
 
 Outputs go under benchmarks/results/blocks/ (not in git).  The figures of a run on this
@@ -24,6 +25,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import re
 import shutil
 import subprocess
 import sys
@@ -184,14 +186,17 @@ def plan(a):
     out = RESULTS / f"plan_n{a.n}_b{a.block}"
     shutil.rmtree(out, ignore_errors=True)
     cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", str(a.function), "--n", str(a.n), "--block",
-           str(a.block), "--tol-inf", str(a.tol), "--out", str(out), "-n"]
+           str(a.block), "--tol-inf", str(a.tol), "--no-merged", "--out", str(out), "-n"]
     r = subprocess.run(cmd, capture_output=True, text=True)
     if r.returncode != 0:
         sys.exit(r.stderr[-4000:])
     text = r.stdout + r.stderr
     table = [ln for ln in text.splitlines() if ln.split()[:1] and ln.split()[0] in
              ("job", "kernels", "lines", "plane", "block", "merge", "all", "total")]
-    print("\n".join(table))
+    print("\n".join(table[:table.index(next(ln for ln in table if ln.startswith("total"))) + 1]))
+    mem = [int(m) for m in re.findall(r"mem_mb=(\d+)", text)]
+    runtime = [int(m) for m in re.findall(r"runtime=(\d+)", text)]
+    print(f"requests: mem_mb up to {max(mem)}, runtime up to {max(runtime)} min")
     p = plan_blocks((a.n + 1,) * 3, a.block)
     pts = sum(int(np.prod([hi - lo for lo, hi in p.block_region(b)])) for b in p.blocks())
     print(f"{len(p.blocks())} blocks, {len(p.planes())} planes, {len(p.lines())} lines; "

@@ -109,7 +109,7 @@ rule merge:
     benchmark:
         "benchmarks/merge.tsv"
     resources:
-        mem_mb=job_resources(PLAN, "merge")[0],
-        runtime=job_resources(PLAN, "merge")[1],
+        mem_mb=job_resources(PLAN, "merge", merged=CFG["merged"])[0],
+        runtime=job_resources(PLAN, "merge", merged=CFG["merged"])[1],
     shell:
         "'{PY}' -m trivsel.blocks merge . > {log} 2>&1"
