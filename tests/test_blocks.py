@@ -332,3 +332,26 @@ def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     local = run_blocks(tmp_path / "local", "-c", "2")
     assert local.returncode == 0, local.stderr[-3000:]
     assert result_files(tmp_path / "slurm") == result_files(tmp_path / "local")
+
+
+def test_cli_reduce_with_a_boundary(tmp_path):
+    """`trivsel reduce --boundary TRIANGLES.npy`: the mesh keeps the given surface; a bad file
+    is one line and exit 2."""
+    import pyvista as pv
+
+    from trivsel.cli import main
+
+    d = sample_grid(4, 6)
+    b = hull_faces(kuhn_tetrahedra(d.shape))
+    np.save(tmp_path / "b.npy", b)
+    assert main(["reduce", "--function", "4", "--n", "6", "--tol-inf", "0.05", "--method", "greedy",
+                 "--boundary", str(tmp_path / "b.npy"), "--out", str(tmp_path / "o")]) == 0
+    mesh = pv.read(next((tmp_path / "o").glob("mesh_*.vtu")))
+    tets = mesh.point_data["original_index"][mesh.cells_dict[pv.CellType.TETRA]]
+    assert as_set(hull_faces(tets)) == as_set(b)
+    (tmp_path / "bad.npy").write_text("not an array")
+    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", "--function", "4", "--n", "6", "--count", "200",
+                        "--boundary", str(tmp_path / "bad.npy"), "--out", str(tmp_path / "o2")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "cannot read boundary" in r.stderr and r.stderr.count("\n") == 1, r.stderr
+    assert not (tmp_path / "o2").exists()

@@ -53,6 +53,10 @@ def build_parser():
     stop.add_argument("--count", type=int, help="number of points to select")
     stop.add_argument("--tol-rms", type=float, help="stop when E_RMS <= this")
     stop.add_argument("--tol-inf", type=float, help="stop when E_inf <= this")
+    r.add_argument("--boundary", metavar="TRIANGLES.npy",
+                   help="prescribed boundary of grid data: an (m, 3) integer array of point indices (C order "
+                        "over i, j, k) forming a closed triangulation of the box's surface; its vertices are "
+                        "kept, only interior points are inserted and no flip changes it")
     r.add_argument("--out", required=True, help="output folder (errors.csv, mesh_<fraction>.vtu, result.json)")
     r.add_argument("--check", action="store_true", help="run the mesh-validity checker at every snapshot (slow)")
     r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",
@@ -165,7 +169,7 @@ def _cmd_reduce(a):
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
     options = from_namespace(a)
-    check_output_dir(a.out, [] if a.input is None else [a.input])  # before any work
+    check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None])  # before any work
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
     if show:
         _show_stages()
@@ -184,14 +188,28 @@ def _cmd_reduce(a):
         from .mesh import check_mesh
 
         check = check_mesh
+    boundary = None if a.boundary is None else _read_triangles(a.boundary)
+    inputs = [p for p in (a.input, a.boundary) if p is not None]
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
-                    options=options, threads=a.threads, check=check, progress=_progress_line if show else None)
-    out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=[] if a.input is None else [a.input])
+                    boundary=boundary, options=options, threads=a.threads, check=check,
+                    progress=_progress_line if show else None)
+    out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
     df = result.errors_frame()
     print(df.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
           f"in {result.timings['total']:.2f} s", file=sys.stderr)
     return 0
+
+
+def _read_triangles(path):
+    """An (m, 3) integer array from a ``.npy`` file (never unpickled)."""
+    import numpy as np
+
+    try:
+        tris = np.load(path, allow_pickle=False)
+    except (OSError, ValueError) as exc:
+        raise InputError(f"cannot read boundary {path!r} as a .npy array: {one_line(exc, first=True)}") from None
+    return tris
 
 
 def _cmd_compile(a):

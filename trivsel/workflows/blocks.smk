@@ -1,5 +1,8 @@
 # A blocked reduction (trivsel.blocks): lines (one job per axis) -> planes -> blocks -> merge.
 #
+# The rules run in the Python environment that runs Snakemake (`trivsel blocks` starts it with
+# its own interpreter), where trivsel is installed: no conda environment of their own.
+#
 # Written and run by `trivsel blocks`, in the run's folder (snakemake --directory OUT), which
 # holds blocks.json (the configuration and the plan).  Every job reads the region of the
 # volume it needs, never the whole volume.  Memory and runtime requests come from the job's
@@ -44,8 +47,10 @@ rule kernels:
     resources:
         mem_mb=job_resources(PLAN, "kernels")[0],
         runtime=job_resources(PLAN, "kernels")[1],
+    params:
+        py=PY,
     shell:
-        "'{PY}' -m trivsel.blocks kernels . > {log} 2>&1"
+        "'{params.py}' -m trivsel.blocks kernels . > {log} 2>&1"
 
 
 rule lines:
@@ -60,8 +65,10 @@ rule lines:
     resources:
         mem_mb=lambda wc: job_resources(PLAN, "lines", int(wc.axis))[0],
         runtime=lambda wc: job_resources(PLAN, "lines", int(wc.axis))[1],
+    params:
+        py=PY,
     shell:
-        "'{PY}' -m trivsel.blocks lines . {wildcards.axis} > {log} 2>&1"
+        "'{params.py}' -m trivsel.blocks lines . {wildcards.axis} > {log} 2>&1"
 
 
 rule plane:
@@ -76,8 +83,10 @@ rule plane:
     resources:
         mem_mb=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[0],
         runtime=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[1],
+    params:
+        py=PY,
     shell:
-        "'{PY}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
+        "'{params.py}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
 
 
 rule block:
@@ -93,8 +102,10 @@ rule block:
     resources:
         mem_mb=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[0],
         runtime=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[1],
+    params:
+        py=PY,
     shell:
-        "'{PY}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
+        "'{params.py}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
 
 
 rule merge:
@@ -111,5 +122,7 @@ rule merge:
     resources:
         mem_mb=job_resources(PLAN, "merge", merged=CFG["merged"])[0],
         runtime=job_resources(PLAN, "merge", merged=CFG["merged"])[1],
+    params:
+        py=PY,
     shell:
-        "'{PY}' -m trivsel.blocks merge . > {log} 2>&1"
+        "'{params.py}' -m trivsel.blocks merge . > {log} 2>&1"
