@@ -19,7 +19,6 @@ import time
 from dataclasses import dataclass, field, replace
 
 import numpy as np
-from scipy.spatial import QhullError
 
 from . import mesh as _mesh
 from .data import PointData, sample_grid
@@ -201,6 +200,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         start_tets = box_tetrahedra(data.shape, opts.boundary_diagonals)
         all_tets = None  # grids: the curvature graph comes from the Kuhn stencil
     else:
+        from scipy.spatial import QhullError
+
         try:
             # Qhull runs for minutes on millions of points: interruptible keeps Ctrl-C prompt
             log.info("convex hull and start mesh of %d points", N)

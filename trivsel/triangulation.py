@@ -20,8 +20,8 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-from scipy.spatial import ConvexHull, Delaunay, QhullError
-
+# scipy.spatial (Qhull) is imported where it is used: grids never need it, and it is a
+# large share of a short run's start-up.
 from .exceptions import InputError
 
 __all__ = [
@@ -104,6 +104,8 @@ def delaunay_tetrahedra(points) -> np.ndarray:
     For neighbour graphs only: dropping a flat tetrahedron may leave the
     triangulation non-conforming.  :func:`start_tetrahedra` gives a conforming one.
     """
+    from scipy.spatial import Delaunay
+
     tri = Delaunay(np.asarray(points, float))
     tets = tri.simplices.astype(np.int64)
     del tri  # Qhull's output (neighbours, facet equations) is as large again
@@ -186,7 +188,7 @@ def start_tetrahedra(points) -> np.ndarray:
               \ | /                     \ | /
             (b, d flat)               (b, d below)
     """
-    from .exceptions import InputError
+    from scipy.spatial import Delaunay
 
     p = np.asarray(points, float)
     tets = Delaunay(p).simplices.astype(np.int64)
@@ -271,8 +273,6 @@ def exact_hull_tetrahedra(points, order):
     Returns the tetrahedra (global point ids).  Used when Qhull's triangulation of
     nearly degenerate input cannot be verified exactly.
     """
-    from .exceptions import InputError
-
     p = np.asarray(points, float)
     order = np.asarray(order, np.int64)
     q = p[order]
@@ -342,7 +342,7 @@ def scattered_start(points, hull_vertices):
     tets : (M, 4) int64, global point ids, positively oriented
     vertices : (V,) int64, the sorted vertex ids (the fixed points)
     """
-    from .exceptions import InputError
+    from scipy.spatial import QhullError
 
     p = np.asarray(points, float)
     hull_vertices = np.asarray(hull_vertices, np.int64)
@@ -482,6 +482,8 @@ def hull_triangles(points):
     are returned as vertices; points lying in the interior of hull faces or edges
     are not, so they stay candidates for selection like the face points of a grid.
     """
+    from scipy.spatial import ConvexHull
+
     p = np.asarray(points, float)
     hull = ConvexHull(p)
     tris = hull.simplices.astype(np.int64).copy()
@@ -495,6 +497,8 @@ def hull_triangles(points):
 
 def hull_boundary_mask(points, rtol: float = 1e-12) -> np.ndarray:
     """True for points on the convex hull's surface (on a hull facet's plane)."""
+    from scipy.spatial import ConvexHull
+
     p = np.asarray(points, float)
     hull = ConvexHull(p)
     scale = np.max(np.abs(p)) if p.size else 1.0

@@ -15,7 +15,6 @@ Checks, on a :class:`~trivsel.mesh.tetmesh.TetMesh`:
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import ConvexHull
 
 from ..triangulation import orient3d_float
 from .geometry import _locate_in, _orient
@@ -45,6 +44,8 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
     Pc = P - 0.5 * (lo + hi)
     vol = orient3d_float(Pc, tets).sum() / 6.0
     if hull_volume is None:
+        from scipy.spatial import ConvexHull
+
         hull_volume = ConvexHull(Pc).volume
     extent = max(float(np.min(hi - lo)), 1e-300)
     tol = max(rtol * 10, 64 * np.finfo(float).eps * float(np.max(np.abs(P))) / extent)
