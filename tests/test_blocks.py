@@ -282,7 +282,9 @@ def test_workflow_dry_run_plans_resources(tmp_path):
 
 
 @pytest.mark.parametrize("args, message", [
-    ([], "give an input volume or --function"),
+    ([], "give either an input volume or --function"),
+    (["x.zarr", "--function", "4", "--n", "8", "--block", "4", "--tol-inf", "0.1"], "not both"),
+    (["--function", "4", "--block", "4", "--tol-inf", "0.1"], "give --n"),
     (["--function", "4", "--n", "16", "--tol-inf", "0.1"], "give --block"),
     (["--function", "4", "--n", "16", "--block", "4"], "give --tol-inf"),
     (["--function", "4", "--n", "16", "--block", "1", "--tol-inf", "0.1"], "block size"),

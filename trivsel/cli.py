@@ -277,8 +277,10 @@ def _cmd_blocks(a, snakemake_args):
             config[key] = getattr(a, key)
     if a.no_merged:
         config["merged"] = False
-    if config.get("input") is None and config.get("function") is None:
-        raise InputError("give an input volume or --function (and --n)")
+    if (config.get("input") is None) == (config.get("function") is None):
+        raise InputError("give either an input volume or --function (and --n), not both")
+    if config.get("function") is not None and config.get("n") is None:
+        raise InputError("give --n (grid intervals per axis) with --function")
     for key in ("block", "tol_inf"):
         if config.get(key) is None:
             raise InputError(f"give --{key.replace('_', '-')} (or `{key}:` in --config)")
