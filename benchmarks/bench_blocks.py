@@ -11,6 +11,9 @@ memory, a real volume, and the plan of a 1025^3 run.
     python benchmarks/bench_blocks.py icbm [--block 64] [--tol 8]
         The nilearn ICBM152 2009a T1 at 1 mm (197 x 233 x 189), converted to Zarr and
         reduced in blocks; the merged mesh checked (needs the ``realdata`` extra).
+    python benchmarks/bench_blocks.py local --input VOL.zarr [--n 47] [--blocks 8 12 47] [--tols 8 10]
+        Block size as a regulariser: the stages on a crop for several block sizes and
+        tolerances, against greedy over the whole crop at the same vertex count.
     python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
         The jobs and resources of a 1025^3 run (``-n``; the .pvtu output, no merged .vtu,
         which would need tens of GB in one job at this size), and its core-hours estimated from
@@ -97,6 +100,29 @@ def seams(a):
     print(f"| unblocked greedy (same count) | {snap.n_selected} | {e['E_rms']:.4g} | {e['E_inf']:.4g} | "
           f"{t_unblocked:.1f} |")
     print(f"E_RMS blocked / unblocked = {e_rms_b / e['E_rms']:.3f} (target <= 1.10)")
+
+
+def local(a):
+    """Block size as a tool for quality: the stages in one process on a crop, for several block
+    sizes and tolerances, against greedy over the whole crop at the same vertex count."""
+    from trivsel import reduce
+    from trivsel.blocks import check_tetrahedra, plan_blocks
+    from trivsel.data import grid_from_array
+    from trivsel.regions import open_volume
+
+    vol = _Crop(open_volume(a.input), a.n + 1)
+    whole = grid_from_array(vol.read(tuple((0, s) for s in vol.shape)))
+    print(f"{Path(a.input).name}, central crop {vol.shape}")
+    print("| block | tol_inf | vertices | E_RMS | E_inf | greedy E_RMS at that count | greedy E_inf | ratio |")
+    print("|---|---|---|---|---|---|---|---|")
+    for block in a.blocks:
+        for tol in a.tols:
+            tets, e_rms, e_inf = _stage_all(vol, plan_blocks(vol.shape, block), tol)
+            check_tetrahedra(vol.shape, tets)
+            V = len(np.unique(tets))
+            g = reduce(whole, count=V, method="greedy").snapshots[-1].errors
+            print(f"| {block} | {tol:g} | {V} | {e_rms:.4g} | {e_inf:.4g} | {g['E_rms']:.4g} | {g['E_inf']:.4g} | "
+                  f"{e_rms / g['E_rms']:.3f} |", flush=True)
 
 
 def _run_blocks(args, out, cores):
@@ -217,21 +243,23 @@ def plan(a):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("what", choices=["seams", "big", "icbm", "plan"])
+    ap.add_argument("what", choices=["seams", "big", "icbm", "plan", "local"])
     ap.add_argument("--function", type=int, default=4)
     ap.add_argument("--n", type=int)
     ap.add_argument("--block", type=int)
     ap.add_argument("--tol", type=float)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--measured", help="plan: a finished run's folder for the seconds per point")
-    ap.add_argument("--input", help="seams: a volume (e.g. a .zarr) whose central (n+1)^3 crop is reduced")
+    ap.add_argument("--input", help="seams, local: a volume (e.g. a .zarr) whose central (n+1)^3 crop is reduced")
+    ap.add_argument("--blocks", type=int, nargs="+", default=[8, 12, 47], help="local: block sizes")
+    ap.add_argument("--tols", type=float, nargs="+", default=[8.0, 10.0], help="local: E_inf tolerances")
     a = ap.parse_args()
     defaults = {"seams": (128, 32, 0.002), "big": (256, 64, 0.002), "icbm": (None, 64, 8.0),
-                "plan": (1024, 128, 0.002)}[a.what]
+                "plan": (1024, 128, 0.002), "local": (47, None, None)}[a.what]
     a.n = a.n if a.n is not None else defaults[0]
     a.block = a.block if a.block is not None else defaults[1]
     a.tol = a.tol if a.tol is not None else defaults[2]
-    {"seams": seams, "big": big, "icbm": icbm, "plan": plan}[a.what](a)
+    {"seams": seams, "big": big, "icbm": icbm, "plan": plan, "local": local}[a.what](a)
 
 
 if __name__ == "__main__":
