@@ -248,14 +248,16 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     return data
 
 
-def _read_nifti(p, array, *, volume=None):
-    """A NIfTI image through nibabel (see the module docstring): scaled values (float64),
-    placement by the affine, flipped and permuted axes undone, oblique images refused."""
+def open_nifti(p, array, volume, *, keep_file_open=False):
+    """``(img, shape, dtype, k, affine)`` of a NIfTI image, its header checked: a NIfTI-1/-2
+    image of a real voxel type, volume ``k`` of a 4-D one, and its index-to-world affine (the
+    sform or qform, or with neither set the standard's method 1: voxel sizes, origin at 0).
+    The voxels are not read."""
     import nibabel as nib
 
     _no_array(p, array)
     try:
-        img = nib.load(str(p))
+        img = nib.load(str(p), keep_file_open=keep_file_open)
         shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
     except Exception as exc:  # nibabel raises many types for damaged files
         raise InputError(f"cannot read {str(p)!r} as NIfTI: {one_line(exc)}") from None
@@ -269,6 +271,13 @@ def _read_nifti(p, array, *, volume=None):
         affine = np.diag([*np.asarray(hdr["pixdim"][1:4], float), 1.0])
     else:
         affine = np.asarray(img.affine, float)
+    return img, shape, dtype, k, affine
+
+
+def _read_nifti(p, array, *, volume=None):
+    """A NIfTI image through nibabel (see the module docstring): scaled values (float64),
+    placement by the affine, flipped and permuted axes undone, oblique images refused."""
+    img, shape, _, k, affine = open_nifti(p, array, volume)
     from .resources import check_memory
 
     check_memory(8.0 * float(np.prod(shape)), f"reading {str(p)!r} (shape {tuple(shape)})")

@@ -444,24 +444,10 @@ class _VoxelAxes:
 def _nifti_volume(p, array, volume):
     """A NIfTI image through nibabel's array proxy: each read fetches the region's voxels
     and applies ``scl_slope``/``scl_inter`` in float64, as ``get_fdata()`` does."""
-    import nibabel as nib
+    from .io import _stem, open_nifti
 
-    from .io import _check_voxel_dtype, _no_array, _stem, _volume_index
-
-    _no_array(p, array)
-    try:
-        img = nib.load(str(p), keep_file_open=True)  # one open stream: a .nii.gz is not re-opened per read
-        shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
-    except Exception as exc:  # nibabel raises many types for damaged files
-        raise InputError(f"cannot read {str(p)!r} as NIfTI: {one_line(exc)}") from None
-    if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
-        raise InputError(f"{str(p)!r} is not a NIfTI image (nibabel reads it as {type(img).__name__})")
-    _check_voxel_dtype(p, dtype)
-    k = _volume_index(p, shape, volume)
-    if int(hdr["sform_code"]) == 0 and int(hdr["qform_code"]) == 0:  # the standard's method 1, as io reads it
-        affine = np.diag([*np.asarray(hdr["pixdim"][1:4], float), 1.0])
-    else:
-        affine = np.asarray(img.affine, float)
+    # one open stream: a .nii.gz is not re-opened per read
+    img, shape, dtype, k, affine = open_nifti(p, array, volume, keep_file_open=True)
     axes = _VoxelAxes(p, affine[:3, :3], affine[:3, 3], "affine", _stem(p), shape[:3])
     rest = (k,) + (0,) * (len(shape) - 4) if len(shape) > 3 else ()
     proxy = img.dataobj
