@@ -41,18 +41,13 @@ RESULTS = Path(__file__).resolve().parent / "results" / "blocks"
 
 
 def _stage_all(vol, plan, tol, method="greedy"):
-    from trivsel.blocks import reduce_block, reduce_line, reduce_plane
+    """The blocked tetrahedra, E_RMS over all points (every stage's squared residuals) and E_inf."""
+    from trivsel.blocks import reduce_in_blocks
 
-    lines = {ln: reduce_line(vol, plan, ln, tol_inf=tol) for ln in plan.lines()}
-    planes = {p: reduce_plane(vol, plan, p, {k: r["kept"] for k, r in lines.items()}, tol_inf=tol)
-              for p in plan.planes()}
-    faces = {p: r["triangles"] for p, r in planes.items()}
-    blocks = [reduce_block(vol, plan, b, faces, tol_inf=tol, method=method) for b in plan.blocks()]
-    tets = np.concatenate([t for t, _ in blocks])
-    sse = sum(r["sse"] for r in lines.values()) + sum(r["sse"] for r in planes.values()) + \
-        sum(s["sse"] for _, s in blocks)
-    e_inf = max(s["max"] for _, s in blocks)
-    return tets, float(np.sqrt(sse / plan.n_points())), e_inf
+    tets, st = reduce_in_blocks(vol, plan, tol_inf=tol, method=method)
+    owned = list(st["lines"].values()) + list(st["planes"].values()) + st["blocks"]
+    sse = sum(r["sse"] for r in owned)
+    return tets, float(np.sqrt(sse / plan.n_points())), max(s["max"] for s in st["blocks"])
 
 
 class _Crop:

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from trivsel import reduce
-from trivsel.blocks import (Plan, block_faces, check_tetrahedra, merge_blocks, plan_blocks, reduce_block,
-                            reduce_line, reduce_plane, run_job, write_config, read_config, item_name)
+from trivsel.blocks import (Plan, check_tetrahedra, item_name, merge_blocks, plan_blocks, read_config,
+                            reduce_in_blocks, run_job, write_config)
 from trivsel.data import sample_grid
 from trivsel.exceptions import InputError
 from trivsel.mesh import TetMesh, check_mesh
@@ -59,13 +59,9 @@ def evaluate(d, tets):
 
 
 def blocked(vol, plan, tol, method="greedy"):
-    """Every stage in process, in the workflow's order; returns (tets, stats of each stage)."""
-    lines = {ln: reduce_line(vol, plan, ln, tol_inf=tol) for ln in plan.lines()}
-    kept = {ln: r["kept"] for ln, r in lines.items()}
-    planes = {p: reduce_plane(vol, plan, p, kept, tol_inf=tol) for p in plan.planes()}
-    faces = {p: r["triangles"] for p, r in planes.items()}
-    out = [reduce_block(vol, plan, b, faces, tol_inf=tol, method=method) for b in plan.blocks()]
-    return np.concatenate([t for t, _ in out]), (lines, planes, [s for _, s in out])
+    """Every stage in process; returns (tets, (lines, planes, block stats))."""
+    tets, st = reduce_in_blocks(vol, plan, tol_inf=tol, method=method)
+    return tets, (st["lines"], st["planes"], st["blocks"])
 
 
 # ----------------------------------------------------------------------------- prescribed boundary

@@ -44,7 +44,7 @@ import numpy as np
 
 from .exceptions import InputError
 
-__all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "merge_blocks",
+__all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
            "check_tetrahedra", "job_resources"]
 
 #: The volume's source, as :func:`trivsel.regions.open_volume` takes it.
@@ -184,7 +184,7 @@ def reduce_plane(volume, plan, plane, lines, *, tol_inf):
     indices, counter-clockwise in the plane's two axes in increasing order) and
     ``sse``, ``max``, ``count`` over the faces' own points (not on a line).
     """
-    from .faces import reduce_face
+    from .faces import face_residuals, reduce_face
 
     a, ia = plane
     u, v = _others(a)
@@ -209,8 +209,6 @@ def reduce_plane(volume, plan, plane, lines, *, tol_inf):
                 k = _line_kept(lines, v, a, u, ia, jj)
                 border[row, k[(k >= v0) & (k <= v1)] - v0] = True
             verts, t = reduce_face(vals, border, tol_inf=tol_inf)
-            from .faces import face_residuals
-
             r = face_residuals(vals, verts, t)[1:-1, 1:-1]
             sse += float(np.sum(r * r))
             mx = max(mx, float(r.max()) if r.size else 0.0)
@@ -231,6 +229,24 @@ def _line_kept(lines, axis, a, b, ia, ib):
     key = {a: ia, b: ib}
     o1, o2 = _others(axis)
     return np.asarray(lines[(axis, key[o1], key[o2])], np.int64)
+
+
+def reduce_in_blocks(volume, plan, *, tol_inf, method="greedy", blocks=None):
+    """Every stage in this process, in the workflow's order (tests, benchmarks, the kernels
+    job); ``blocks`` limits the 3-D stage to those blocks (default all).
+
+    Returns ``(tets, stages)``: the blocks' tetrahedra (global indices) and each stage's
+    results, ``stages["lines"]`` and ``stages["planes"]`` (dicts by item, as
+    :func:`reduce_line` and :func:`reduce_plane` return them) and ``stages["blocks"]`` (the
+    blocks' stats, in order)."""
+    lines = {ln: reduce_line(volume, plan, ln, tol_inf=tol_inf) for ln in plan.lines()}
+    kept = {ln: r["kept"] for ln, r in lines.items()}
+    planes = {p: reduce_plane(volume, plan, p, kept, tol_inf=tol_inf) for p in plan.planes()}
+    faces = {p: r["triangles"] for p, r in planes.items()}
+    done = [reduce_block(volume, plan, b, faces, tol_inf=tol_inf, method=method)
+            for b in (plan.blocks() if blocks is None else blocks)]
+    return np.concatenate([t for t, _ in done]), {"lines": lines, "planes": planes,
+                                                  "blocks": [st for _, st in done]}
 
 
 def block_faces(plan, block):
@@ -520,10 +536,7 @@ def compile_kernels(method):
         def read(self, region):
             return f[tuple(slice(*r) for r in region)]
 
-    vol = _Array()
-    lines = {ln: reduce_line(vol, plan, ln, tol_inf=0.0)["kept"] for ln in plan.lines()}
-    faces = {p: reduce_plane(vol, plan, p, lines, tol_inf=0.0)["triangles"] for p in plan.planes()}
-    reduce_block(vol, plan, (0, 0, 0), faces, tol_inf=0.0, method=method)
+    reduce_in_blocks(_Array(), plan, tol_inf=0.0, method=method, blocks=[(0, 0, 0)])
 
 
 def line_in_plane(line, plane):

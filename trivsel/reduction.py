@@ -276,8 +276,9 @@ def _boundary_on_box(data, boundary):
     of points on the box's surface whose triangles tile it (their areas, projected on
     each face's axis, sum to the box's surface area: no gap, no overlap)."""
     tris = check_closed_surface(boundary, data.n_points)
-    if np.any(data.interior_mask()[tris]):
-        bad = tris[np.flatnonzero(np.any(data.interior_mask()[tris], axis=1))[0]]
+    inside = np.any(data.interior_mask()[tris], axis=1)
+    if inside.any():
+        bad = tris[np.flatnonzero(inside)[0]]
         raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} has a vertex inside the box, "
                          f"not on its surface")
     c = data.ijk.astype(float)
