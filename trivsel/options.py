@@ -66,7 +66,9 @@ class Options:
 
     method: str = _option(
         "paper", "point selection: 'paper' ranks by absolute curvature (sections 2-4); 'greedy' inserts the "
-        "worst-approximated point next (error-driven, Garland & Heckbert 1995 lifted to 3-D)",
+        "worst-approximated point next (error-driven, Garland & Heckbert 1995 lifted to 3-D); 'decimate' "
+        "removes points from the full grid by the half-edge collapse that raises the squared error least "
+        "(grids; aims at E_RMS)",
         kind="choice", paper="sections 2-4", tag="method")
     criterion: str | None = _option(
         None, "swap criterion: sum of the tetrahedral RMS errors (eq. 14) 'rms', of the max errors (eq. 15) "

@@ -186,6 +186,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     user_data, user_stop = data, stop
     data, scaling = _safe_scale(data)
     stop = scaling.stop_in(stop)
+    if getattr(method, "DECIMATES", False):
+        return _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, progress, t_start)
 
     # --- fixed points and the initial triangulation (section 3)
     if boundary is not None:
@@ -269,6 +271,48 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                            order=order if K is not None else inserted,
                            snapshots=[scaling.snapshot_out(s) for s in run.snapshots],
                            options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats)
+
+
+def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, progress, t_start):
+    """``method="decimate"``: the run goes down from the full grid (:mod:`trivsel.decimation`)."""
+    from .decimation import reduce_by_collapse
+    from .resources import check_memory
+
+    if boundary is not None:
+        raise InputError("method 'decimate' cannot take a prescribed boundary; use 'greedy' or 'paper'")
+    N = data.n_points
+    check_memory(DECIMATION_BYTES_PER_POINT * float(N), f"decimating {N} points")
+    interior = data.interior_mask()
+    n_fixed = int(np.sum(~interior)) if opts.candidates == "interior" else 8
+    targets = sorted({count_for_fraction(f, N) for f in stop["fractions"]}
+                     | ({int(stop["count"])} if stop["count"] is not None else set()))
+    for m in targets:
+        if m < n_fixed:
+            raise InputError(f"target of {m} points is fewer than the {n_fixed} points that decimation keeps "
+                             f"(candidates {opts.candidates!r}, N = {N}): give --count {n_fixed} or more")
+    if not targets:  # tolerance only: as far down as the tolerance allows
+        targets = [n_fixed]
+    log.info("decimating %d points down to %d", N, targets[0])
+    snaps, selected, stats, t_errors = reduce_by_collapse(
+        data, targets, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], candidates=opts.candidates,
+        values=opts.values, interior=interior, check=check, progress=scaling.progress_out(progress),
+        t_start=t_start)
+    req = {count_for_fraction(f, N): f for f in stop["fractions"]}
+    for s in snaps:
+        if s.n_selected in req:
+            s.fraction = req[s.n_selected]
+    t_total = time.perf_counter() - t_start
+    timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
+    fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
+    order = selected[~fixed[selected]]
+    return ReductionResult(data=user_data, selected=snaps[-1].selected, curvature=None, order=order,
+                           snapshots=[scaling.snapshot_out(s) for s in snaps],
+                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=stats)
+
+
+#: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
+#: corner lists, the buckets and the queue), for the memory check.
+DECIMATION_BYTES_PER_POINT = 1000
 
 
 def _boundary_on_box(data, boundary):

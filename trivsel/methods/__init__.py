@@ -23,18 +23,21 @@ A method is a module that defines
     (or the RMS tolerance is met, or nothing is left to improve), and return the
     new count and the points inserted, in order.
 
+A method that defines ``DECIMATES = True`` (``decimate``) removes points from the full
+grid instead of inserting them; :func:`trivsel.reduce` hands it the whole run.
+
 Adding a method is one module here and one line in :data:`METHODS`.
 """
 
 from __future__ import annotations
 
 from ..exceptions import InputError
-from . import greedy, paper
+from . import decimate, greedy, paper
 
 __all__ = ["METHODS", "get_method"]
 
 #: name -> method module, in the order the docs list them (the first is the default).
-METHODS = {paper.NAME: paper, greedy.NAME: greedy}
+METHODS = {paper.NAME: paper, greedy.NAME: greedy, decimate.NAME: decimate}
 
 
 def get_method(name):

@@ -1,0 +1,676 @@
+"""Bottom-up selection by half-edge collapse (``method="decimate"``), beyond the paper.
+
+The paper builds its mesh top-down: from the hull points, insert points in curvature
+order (sections 3-4).  Decimation goes the other way.  Start from every grid point,
+tetrahedralised by the Kuhn split (6 tetrahedra per cell around its main diagonal),
+and repeatedly remove the vertex whose removal raises the squared error least::
+
+        u                 u            a vertex v is removed by moving it onto a
+       /|\               /|            neighbour w (a half-edge collapse v -> w):
+      / | \             / |            the tetrahedra around the edge vw vanish,
+     a--v--w   --->    a--+--w         the others around v get w instead of v
+      \ | /             \ |
+       \|/               \|
+        d                 d
+
+Because w is an original point, the vertices stay a subset of the data: the result
+is a true selection with the data values at its vertices, as in the paper (section
+5's E_RMS and E_inf, eqs. 19-20, score it).  Every original point that is not a
+vertex lies in one tetrahedron (its *bucket*); its residual is ``f - L`` with ``L``
+the linear interpolant of eq. 13 there.
+
+* **Cost** of a collapse: the exact change of the sum of squared residuals over the
+  original points (eq. 19's numerator).  Only the points in v's tetrahedra and v itself
+  change tetrahedron, so the cost is computed from those buckets.
+* **Validity**: every tetrahedron that gets w keeps a positive volume (exact integer
+  orientation test on grid coordinates).  The region of v's star is then the cone from
+  w over its far faces, so the mesh still fills the box.  A point on the box keeps the
+  box: a corner never moves, a point on an edge of the box moves only along that edge,
+  and a point on a face only within that face.
+* **Order**: an indexed priority queue holds each vertex's cheapest valid collapse
+  (ties: the smaller target index, then the smaller vertex index); after a collapse
+  the vertices of the changed tetrahedra are re-evaluated.
+* **Stop**: at a vertex count, before the collapse that would take E_RMS above a
+  tolerance, or when no collapse keeps every residual within an E_inf tolerance.
+
+Geometry is on integer grid coordinates: barycentric weights are unchanged by the
+grid's spacing and origin (an affine map), so the interpolant, the residuals and
+the validity are those of the grid in world coordinates.
+"""
+
+from __future__ import annotations
+
+from itertools import permutations
+from typing import NamedTuple
+
+import numpy as np
+from numba import njit
+
+from .predicates import orient3d_value
+
+__all__ = ["grid_tetrahedra", "Decimation"]
+
+INF = np.inf
+
+# lock bits of a point: bit a (a = 0, 1, 2) set when the point is on the box's low or high
+# face normal to axis a; LOCK_ALL when it may not move at all
+LOCK_ALL = 8
+#: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
+STAR_CAPACITY = 1 << 16
+
+
+def grid_tetrahedra(shape):
+    """The Kuhn split of the grid ``shape``: 6 positively oriented tetrahedra per cell,
+    each a monotone path from the cell's low corner to its high corner, so that
+    neighbouring cells split their shared faces alike.  Returns ``(M, 4)`` int64
+    indices of the points in C order."""
+    n = np.asarray(shape, np.int64)
+    if np.any(n < 2):
+        raise ValueError(f"a grid needs at least 2 points per axis, got {tuple(shape)}")
+    step = np.array([n[1] * n[2], n[2], 1], np.int64)
+    i, j, k = np.meshgrid(*(np.arange(m - 1) for m in n), indexing="ij")
+    base = ((i * n[1] + j) * n[2] + k).ravel()
+    out = []
+    for perm in permutations(range(3)):
+        a = base
+        b = a + step[perm[0]]
+        c = b + step[perm[1]]
+        d = c + step[perm[2]]
+        # the path's orientation is the sign of the permutation
+        inv = sum(perm[x] > perm[y] for x in range(3) for y in range(x + 1, 3)) % 2
+        out.append(np.stack([b, a, c, d] if inv else [a, b, c, d], axis=1))
+    return np.concatenate(out)
+
+
+class State(NamedTuple):
+    """The flat arrays of a decimation (numba compiles field access statically)::
+
+        P[p]          integer grid coordinates of point p
+        f[p]          its value
+        T[t]          the 4 vertices of tet t (orient3d > 0) while alive[t]
+        corner c = 4 t + s is slot s of tet t; each vertex's corners form a doubly linked
+        list: vhead[v] -> cnext[c] -> ... (cprev back), -1 at the ends
+        phead[t]      first point in the bucket of tet t; pnext[p] the next; ptet[p] the tet
+        res[p]        f - L at p (0 at vertices); isv[p] whether p is a vertex
+        lock[p]       the box constraint (bits above)
+        heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
+                      queued); htgt[v] the target of v's cheapest collapse
+        acc[0]        the sum of squared residuals; ctr: [stamp, n_vertices, n_removed]
+    """
+
+    P: np.ndarray
+    f: np.ndarray
+    T: np.ndarray
+    alive: np.ndarray
+    vhead: np.ndarray
+    cnext: np.ndarray
+    cprev: np.ndarray
+    phead: np.ndarray
+    pnext: np.ndarray
+    ptet: np.ndarray
+    res: np.ndarray
+    isv: np.ndarray
+    lock: np.ndarray
+    hv: np.ndarray
+    hpos: np.ndarray
+    hkey: np.ndarray
+    htgt: np.ndarray
+    mark: np.ndarray
+    deg: np.ndarray
+    hdeg: np.ndarray
+    removed: np.ndarray
+    sc: np.ndarray
+    sc2: np.ndarray
+    G: np.ndarray
+    pbuf: np.ndarray
+    aff: np.ndarray
+    acc: np.ndarray
+    ctr: np.ndarray
+
+
+C_STAMP, C_NV, C_NREM, C_HN = 0, 1, 2, 3
+
+# ----------------------------------------------------------------------------- geometry
+
+
+@njit(cache=True, _nrt=False)
+def _orient(P, a, b, c, d):
+    """Six times the signed volume of (a, b, c, d): exact on integer coordinates."""
+    return orient3d_value(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
+                          P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
+
+
+@njit(cache=True, _nrt=False)
+def _value_in(P, f, q0, q1, q2, q3, p):
+    """``(inside, L)``: whether p is in the closed tet (q0, q1, q2, q3) and, if so, the
+    linear interpolant of the vertex values there (eq. 13)."""
+    l0 = _orient(P, p, q1, q2, q3)
+    if l0 < 0:
+        return False, 0.0
+    l1 = _orient(P, q0, p, q2, q3)
+    if l1 < 0:
+        return False, 0.0
+    l2 = _orient(P, q0, q1, p, q3)
+    if l2 < 0:
+        return False, 0.0
+    l3 = _orient(P, q0, q1, q2, p)
+    if l3 < 0:
+        return False, 0.0
+    D = float(l0 + l1 + l2 + l3)
+    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / D
+
+
+@njit(cache=True, _nrt=False)
+def _has(T, t, w):
+    return T[t, 0] == w or T[t, 1] == w or T[t, 2] == w or T[t, 3] == w
+
+
+@njit(cache=True, _nrt=False)
+def _moved(T, t, s, w, j):
+    """Vertex j of tet t once slot s holds w."""
+    return w if j == s else T[t, j]
+
+
+@njit(cache=True, _nrt=False)
+def _coords(P, T, t, s, j, x, y, z):
+    """Coordinate (x, y, z) of vertex j of tet t, with (x, y, z) in slot s."""
+    if j == s:
+        return x, y, z
+    q = T[t, j]
+    return P[q, 0], P[q, 1], P[q, 2]
+
+
+@njit(cache=True, _nrt=False)
+def _orient_at(P, T, t, s, x, y, z):
+    """orient3d of tet t with the point (x, y, z) in slot s (exact on integers)."""
+    a0, a1, a2 = _coords(P, T, t, s, 0, x, y, z)
+    b0, b1, b2 = _coords(P, T, t, s, 1, x, y, z)
+    c0, c1, c2 = _coords(P, T, t, s, 2, x, y, z)
+    d0, d1, d2 = _coords(P, T, t, s, 3, x, y, z)
+    return orient3d_value(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2)
+
+
+@njit(cache=True, _nrt=False)
+def _planes(S, sc, n, G):
+    """For each of v's corners ``sc[i]``, the orientation of its tet as an affine function
+    of the point in v's slot: ``orient = G[i, :3] . x + G[i, 3]`` (the far face's plane),
+    so that moving v onto any w is tested with one dot product per tet."""
+    P, T = S.P, S.T
+    for i in range(n):
+        t, s = sc[i] >> 2, sc[i] & 3
+        b = _orient_at(P, T, t, s, 0, 0, 0)
+        G[i, 0] = _orient_at(P, T, t, s, 1, 0, 0) - b
+        G[i, 1] = _orient_at(P, T, t, s, 0, 1, 0) - b
+        G[i, 2] = _orient_at(P, T, t, s, 0, 0, 1) - b
+        G[i, 3] = b
+
+
+@njit(cache=True, _nrt=False)
+def _locate_moved(S, sc, n, v, w, p, hint):
+    """Where p lies once v has moved onto w: ``(tet, L)`` among v's tets (corners
+    ``sc[:n]``) that keep w, trying tet ``hint`` first; ``(-1, 0)`` if none holds p."""
+    T, P, f = S.T, S.P, S.f
+    for rnd in range(2):
+        for i in range(n):
+            t = sc[i] >> 2
+            if (rnd == 0) != (t == hint) or _has(T, t, w):
+                continue
+            s = sc[i] & 3
+            ok, val = _value_in(P, f, _moved(T, t, s, w, 0), _moved(T, t, s, w, 1), _moved(T, t, s, w, 2),
+                                _moved(T, t, s, w, 3), p)
+            if ok:
+                return t, val
+    return -1, 0.0
+
+
+# ----------------------------------------------------------------------------- links
+
+
+@njit(cache=True, _nrt=False)
+def _link(S, v, c):
+    """Put corner c at the head of vertex v's list."""
+    h = S.vhead[v]
+    S.deg[v] += 1
+    S.cnext[c] = h
+    S.cprev[c] = -1
+    if h >= 0:
+        S.cprev[h] = c
+    S.vhead[v] = c
+
+
+@njit(cache=True, _nrt=False)
+def _unlink(S, v, c):
+    """Take corner c out of vertex v's list."""
+    p, q = S.cprev[c], S.cnext[c]
+    S.deg[v] -= 1
+    if p >= 0:
+        S.cnext[p] = q
+    else:
+        S.vhead[v] = q
+    if q >= 0:
+        S.cprev[q] = p
+
+
+@njit(cache=True, _nrt=False)
+def _star(S, v, out):
+    """The corners of vertex v (tet ``c >> 2``, slot ``c & 3``) into ``out``; their count,
+    or -1 if there are more than ``out`` holds (v then does not move)."""
+    n = 0
+    c = S.vhead[v]
+    while c >= 0:
+        if n == out.shape[0]:
+            return -1
+        out[n] = c
+        n += 1
+        c = S.cnext[c]
+    return n
+
+
+# ----------------------------------------------------------------------------- collapses
+
+
+@njit(cache=True, _nrt=False)
+def _allowed(S, v, w):
+    """The box constraint: w is on every box face that v is on."""
+    lk = S.lock[v]
+    if lk & LOCK_ALL:
+        return False
+    for a in range(3):
+        if (lk >> a) & 1 and S.P[w, a] != S.P[v, a]:
+            return False
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def _cost(S, v, w, sc, n, G, tol_inf):
+    """``(cost, shared)``: the change of the squared-residual sum if v moves onto w (v's
+    corners ``sc[:n]``, their planes ``G``), or inf if the collapse is invalid (a tet
+    would not keep a positive volume) or takes a residual above ``tol_inf`` (negative:
+    no limit); and the number of v's tets that contain w."""
+    T, P, f = S.T, S.P, S.f
+    shared = 0
+    wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
+    for i in range(n):
+        t = sc[i] >> 2
+        if _has(T, t, w):
+            shared += 1
+            continue
+        if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
+            return INF, shared
+    if shared == 0:
+        return INF, shared
+    t, val = _locate_moved(S, sc, n, v, w, v, -1)
+    if t < 0:
+        return INF, shared
+    r = f[v] - val
+    if 0.0 <= tol_inf < abs(r):
+        return INF, shared
+    delta = r * r
+    for i in range(n):
+        t0 = sc[i] >> 2
+        p = S.phead[t0]
+        while p >= 0:
+            t, val = _locate_moved(S, sc, n, v, w, p, t0)
+            if t < 0:
+                return INF, shared
+            r = f[p] - val
+            if 0.0 <= tol_inf < abs(r):
+                return INF, shared
+            delta += r * r - S.res[p] * S.res[p]
+            p = S.pnext[p]
+    return delta, shared
+
+
+@njit(cache=True, _nrt=False)
+def _best(S, v, sc, G, tol_inf):
+    """v's cheapest valid collapse ``(cost, w, tets of w after)`` over its neighbours w
+    (ties: fewer tets around w, then the smaller w); ``(inf, -1, 0)`` if none."""
+    n = _star(S, v, sc)
+    best, bw, be = INF, -1, 0
+    if n < 0:
+        return best, bw, be
+    _planes(S, sc, n, G)
+    S.ctr[C_STAMP] += 1
+    stamp = S.ctr[C_STAMP]
+    S.mark[v] = stamp
+    for i in range(n):
+        t = sc[i] >> 2
+        for j in range(4):
+            w = S.T[t, j]
+            if S.mark[w] == stamp:
+                continue
+            S.mark[w] = stamp
+            if not _allowed(S, v, w):
+                continue
+            c, shared = _cost(S, v, w, sc, n, G, tol_inf)
+            if c == INF:
+                continue
+            e = S.deg[w] + n - 2 * shared
+            if c < best or (c == best and (e < be or (e == be and w < bw))):
+                best, bw, be = c, w, e
+    return best, bw, be
+
+
+@njit(cache=True, _nrt=False)
+def _collapse(S, v, w, sc, n):
+    """Move v onto w (v's corners ``sc[:n]``): drop the tets of edge vw, give w the others
+    and put the points of v's buckets (and v) into the tets that now hold them."""
+    T, f = S.T, S.f
+    m = 0
+    S.pbuf[m] = v
+    m += 1
+    for i in range(n):
+        t = sc[i] >> 2
+        p = S.phead[t]
+        while p >= 0:
+            S.pbuf[m] = p
+            m += 1
+            p = S.pnext[p]
+        S.phead[t] = -1
+    # locate with the tets still as they were (``_locate_moved`` reads v's slot as w)
+    for i in range(m):
+        p = S.pbuf[i]
+        t, val = _locate_moved(S, sc, n, v, w, p, S.ptet[p] if p != v else -1)
+        S.ptet[p] = t  # t >= 0: the collapse was checked by _cost
+        r = f[p] - val
+        S.acc[0] += r * r - S.res[p] * S.res[p]
+        S.res[p] = r
+    for i in range(n):
+        c = sc[i]
+        t = c >> 2
+        if _has(T, t, w):
+            S.alive[t] = False
+            for j in range(4):
+                if T[t, j] != v:
+                    _unlink(S, T[t, j], 4 * t + j)
+        else:
+            T[t, c & 3] = w
+            _link(S, w, c)
+    S.vhead[v] = -1
+    S.deg[v] = 0
+    S.isv[v] = False
+    for i in range(m):
+        p = S.pbuf[i]
+        t = S.ptet[p]
+        S.pnext[p] = S.phead[t]
+        S.phead[t] = p
+
+
+# ----------------------------------------------------------------------------- the queue
+
+
+@njit(cache=True, _nrt=False)
+def _before(S, a, b):
+    ka, kb = S.hkey[a], S.hkey[b]
+    if ka != kb:
+        return ka < kb
+    da, db = S.hdeg[a], S.hdeg[b]
+    return da < db or (da == db and a < b)
+
+
+@njit(cache=True, _nrt=False)
+def _put(S, i, x):
+    """Vertex x into heap slot i."""
+    S.hv[i] = x
+    S.hpos[x] = i
+
+
+@njit(cache=True, _nrt=False)
+def _sift_up(S, i):
+    x = S.hv[i]
+    while i > 0 and _before(S, x, S.hv[(i - 1) >> 1]):
+        _put(S, i, S.hv[(i - 1) >> 1])
+        i = (i - 1) >> 1
+    _put(S, i, x)
+
+
+@njit(cache=True, _nrt=False)
+def _sift_down(S, i):
+    hv, nh = S.hv, S.ctr[C_HN]
+    x = hv[i]
+    while 2 * i + 1 < nh:
+        j = 2 * i + 1
+        if j + 1 < nh and _before(S, hv[j + 1], hv[j]):
+            j += 1
+        if not _before(S, hv[j], x):
+            break
+        _put(S, i, hv[j])
+        i = j
+    _put(S, i, x)
+
+
+@njit(cache=True, _nrt=False)
+def _queue(S, v, key, w, d):
+    """Set v's cheapest collapse (onto w, leaving w with d tets); an inf key takes v out
+    of the queue."""
+    i = S.hpos[v]
+    if key == INF:
+        if i >= 0:
+            nh = S.ctr[C_HN] - 1
+            S.ctr[C_HN] = nh
+            S.hpos[v] = -1
+            if i < nh:
+                x = S.hv[nh]
+                _put(S, i, x)
+                _sift_up(S, i)
+                _sift_down(S, S.hpos[x])
+        return
+    S.hkey[v] = key
+    S.htgt[v] = w
+    S.hdeg[v] = d
+    if i < 0:
+        i = S.ctr[C_HN]
+        S.ctr[C_HN] = i + 1
+        _put(S, i, v)
+        _sift_up(S, i)
+    else:
+        _sift_up(S, i)
+        _sift_down(S, S.hpos[v])
+
+
+# ----------------------------------------------------------------------------- drivers
+
+
+@njit(cache=True, _nrt=False)
+def _init(S, tol_inf):
+    """Corner lists from the tets, then every vertex's cheapest collapse."""
+    M = S.T.shape[0]
+    for t in range(M - 1, -1, -1):
+        for j in range(3, -1, -1):
+            _link(S, S.T[t, j], 4 * t + j)
+    for v in range(S.P.shape[0]):
+        key, w, d = _best(S, v, S.sc, S.G, tol_inf)
+        _queue(S, v, key, w, d)
+
+
+@njit(cache=True, _nrt=False)
+def _run(S, stop_count, sse_max, tol_inf):
+    """Collapse until ``stop_count`` vertices remain (0), the cheapest collapse would take the
+    squared-residual sum above ``sse_max`` (2), or no valid collapse is left (1)."""
+    sc, sc2, aff = S.sc, S.sc2, S.aff
+    while S.ctr[C_NV] > stop_count:
+        if S.ctr[C_HN] == 0:
+            return 1
+        v = S.hv[0]
+        w = S.htgt[v]
+        if S.acc[0] + S.hkey[v] > sse_max:
+            return 2
+        n = _star(S, v, sc)
+        # the vertices whose tets change: their collapses are evaluated again
+        S.ctr[C_STAMP] += 1
+        stamp = S.ctr[C_STAMP]
+        S.mark[v] = stamp
+        na = 0
+        for i in range(n):
+            t = sc[i] >> 2
+            for j in range(4):
+                u = S.T[t, j]
+                if S.mark[u] != stamp:
+                    S.mark[u] = stamp
+                    aff[na] = u
+                    na += 1
+        _collapse(S, v, w, sc, n)
+        _queue(S, v, INF, -1, 0)
+        S.removed[S.ctr[C_NREM]] = v
+        S.ctr[C_NREM] += 1
+        S.ctr[C_NV] -= 1
+        for i in range(na):
+            u = aff[i]
+            key, x, d = _best(S, u, sc2, S.G, tol_inf)
+            _queue(S, u, key, x, d)
+    return 0
+
+
+@njit(cache=True)
+def _weights(S):
+    """For every point, the 4 vertices and barycentric weights of the tet that holds it
+    (a vertex: itself with weight 1), and its residual."""
+    N = S.P.shape[0]
+    verts = np.empty((N, 4), np.int64)
+    w = np.zeros((N, 4))
+    for p in range(N):
+        t = S.ptet[p]
+        if S.isv[p] or t < 0:
+            verts[p, :] = p
+            w[p, 0] = 1.0
+            continue
+        q0, q1, q2, q3 = S.T[t, 0], S.T[t, 1], S.T[t, 2], S.T[t, 3]
+        l0 = _orient(S.P, p, q1, q2, q3)
+        l1 = _orient(S.P, q0, p, q2, q3)
+        l2 = _orient(S.P, q0, q1, p, q3)
+        l3 = _orient(S.P, q0, q1, q2, p)
+        D = float(l0 + l1 + l2 + l3)
+        verts[p, 0], verts[p, 1], verts[p, 2], verts[p, 3] = q0, q1, q2, q3
+        w[p, 0], w[p, 1], w[p, 2], w[p, 3] = l0 / D, l1 / D, l2 / D, l3 / D
+    return verts, w
+
+
+class Decimation:
+    """A decimation in progress on grid data (integer coordinates ``ijk``, C-order points).
+
+    ``run(count, sse_max)`` collapses down to ``count`` vertices (or to the tolerance);
+    between calls the state is kept, so one run passes several counts.  ``lock`` is
+    ``"box"`` (corners fixed; edge and face points move along their edge or face) or
+    ``"all"`` (every box point fixed: only interior points are removed).
+    """
+
+    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box"):
+        P = np.ascontiguousarray(ijk, np.int64)
+        N = P.shape[0]
+        T = grid_tetrahedra(shape)
+        M = T.shape[0]
+        hi = np.asarray(shape, np.int64) - 1
+        on = (P == 0) | (P == hi)
+        lk = (on[:, 0] * 1 + on[:, 1] * 2 + on[:, 2] * 4).astype(np.int64)
+        lk[on.all(axis=1)] |= LOCK_ALL
+        if lock == "all":
+            lk[on.any(axis=1)] |= LOCK_ALL
+        self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
+        self.S = State(P=P, f=np.ascontiguousarray(values, np.float64), T=T, alive=np.ones(M, np.bool_),
+                       vhead=np.full(N, -1, np.int64), cnext=np.full(4 * M, -1, np.int64),
+                       cprev=np.full(4 * M, -1, np.int64), phead=np.full(M, -1, np.int64),
+                       pnext=np.full(N, -1, np.int64), ptet=np.full(N, -1, np.int64), res=np.zeros(N),
+                       isv=np.ones(N, np.bool_), lock=lk, hv=np.zeros(N, np.int64), hpos=np.full(N, -1, np.int64),
+                       hkey=np.full(N, INF), htgt=np.full(N, -1, np.int64), mark=np.zeros(N, np.int64), deg=np.zeros(N, np.int64),
+                       hdeg=np.zeros(N, np.int64),
+                       removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64), sc2=np.zeros(STAR_CAPACITY, np.int64),
+                       G=np.zeros((STAR_CAPACITY, 4), np.int64),
+                       pbuf=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
+                       ctr=np.array([0, N, 0, 0], np.int64))
+        _init(self.S, self.tol_inf)
+
+    @property
+    def n_vertices(self):
+        return int(self.S.ctr[C_NV])
+
+    @property
+    def sse(self):
+        return float(self.S.acc[0])
+
+    def run(self, count, sse_max=INF):
+        """Collapse to ``count`` vertices; returns 0 (reached), 1 (no valid collapse left)
+        or 2 (the next collapse would exceed ``sse_max``)."""
+        return int(_run(self.S, int(count), float(sse_max), self.tol_inf))
+
+    def removed(self):
+        """The removed points, in order of removal."""
+        return self.S.removed[: self.S.ctr[C_NREM]].copy()
+
+    def vertices(self):
+        return np.flatnonzero(self.S.isv)
+
+    def tetrahedra(self):
+        return self.S.T[self.S.alive].copy()
+
+    def residuals(self):
+        return self.S.res.copy()
+
+    def point_weights(self):
+        return _weights(self.S)
+
+
+#: Target wall time of one call into the compiled loop, so that Ctrl-C stops a run promptly.
+CHUNK_SECONDS = 0.25
+
+
+def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates="all", values=("data",),
+                       interior=None, check=None, progress=None, t_start=None):
+    """The whole run of ``method="decimate"`` for :func:`trivsel.reduce`.
+
+    Collapses from the full grid down through ``targets`` (counts, visited in
+    descending order), or until E_RMS would exceed ``tol_rms`` or no collapse keeps
+    every residual within ``tol_inf``.  Returns ``(snapshots, selected, stats)``:
+    the snapshots ascending by count (:class:`trivsel.reduction.Snapshot`), the
+    points in the order in which a selection grows (the final vertices in index
+    order, then the removed points from last to first: ``selected[:k]`` is the
+    selection of a snapshot with ``k`` points) and the counters.
+    """
+    import time
+
+    from .norms import error_norms
+    from .reduction import Snapshot
+
+    t_start = time.perf_counter() if t_start is None else t_start
+    N = data.n_points
+    interior = data.interior_mask() if interior is None else interior
+    dec = Decimation(data.ijk, data.shape, data.values, tol_inf=tol_inf,
+                     lock="all" if candidates == "interior" else "box")
+    sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)
+    shots, step, stopped = [], 4096, False
+    for target in sorted(set(int(t) for t in targets), reverse=True):
+        while not stopped and dec.n_vertices > target:
+            t0 = time.perf_counter()
+            code = dec.run(max(target, dec.n_vertices - step), sse_max)
+            took = time.perf_counter() - t0
+            step = int(min(max(step * CHUNK_SECONDS / max(took, 1e-6), 256), 4 * step))
+            stopped = code != 0
+            if progress is not None:
+                r = dec.S.res
+                progress(dec.n_vertices, target, float(np.sqrt(max(dec.sse, 0.0) / N)), float(np.max(np.abs(r))),
+                         time.perf_counter() - t_start)
+        te = time.perf_counter()
+        if check is not None:
+            check(dec)
+        r = dec.residuals()
+        fit = None
+        if "fit" in values:
+            from .fitting import fit_vertex_values
+
+            verts, w = dec.point_weights()
+            vtx = dec.vertices()
+            fv, fr = fit_vertex_values(verts, w, data.values, vtx)
+            fit = {"vertices": vtx, "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
+        m = dec.n_vertices
+        shots.append((Snapshot(fraction=m / N, n_selected=m, selected=None, tets=dec.tetrahedra(), residuals=r,
+                               errors=error_norms(r, interior), seconds=time.perf_counter() - t_start, fit=fit),
+                      time.perf_counter() - te))
+        if stopped:
+            break
+    removed = dec.removed()
+    selected = np.concatenate([dec.vertices(), removed[::-1]])
+    snaps = []
+    for s, _ in reversed(shots):
+        s.selected = selected[: s.n_selected].copy()
+        snaps.append(s)
+    stats = {"collapses": int(len(removed)), "tets": int(dec.S.alive.sum())}
+    return snaps, selected, stats, sum(t for _, t in shots)
