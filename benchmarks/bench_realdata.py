@@ -36,14 +36,14 @@ For each row and kept fraction:
 * **VTK + refit**: VTK's meshes with their vertex values refitted by least squares to all voxels
   (the same linear evaluation as above: barycentric weights in the containing tet, the nearest
   boundary triangle's weights outside), median over the runs.
-* **trivsel** ``greedy`` and ``paper`` at VTK's vertex count (``count=`` the median count of VTK's
-  runs), with data values and with fitted values (``values=["data", "fit"]``); greedy stops earlier
-  only if every residual is zero (``<method>_n_selected`` in the CSV).
-* **vertex ratio**: the number of vertices greedy (fit values) needs to reach VTK + refit's E_RMS,
-  divided by VTK's count: one greedy run with snapshots at K * 4^(j/8) (or K / 4^(j/8) when greedy
-  already wins at K), then one run with 8 snapshots inside the bracket that the first crossing fell in;
-  the smallest count of that grid that reaches the target (resolution about 2 % of the count).
-  Capped at 4 (">4").
+* **trivsel** ``decimate``, ``greedy`` and ``paper`` at VTK's vertex count (``count=`` the median count
+  of VTK's runs), with data values and with fitted values (``values=["data", "fit"]``); greedy stops
+  earlier only if every residual is zero (``<method>_n_selected`` in the CSV).
+* **vertex ratio** (``decimate`` and ``greedy``): the number of vertices the method (fit values) needs to
+  reach VTK + refit's E_RMS, divided by VTK's count: one run with snapshots at K * 4^(j/8) (or
+  K / 4^(j/8) when the method already wins at K), then one run with 8 snapshots inside the bracket that
+  the first crossing fell in; the smallest count of that grid that reaches the target (resolution about
+  2 % of the count).  Capped at 4 (">4"), floored at 1/4 ("<0.25").
 * **Delaunay + fit**: the same selected points, plain Delaunay tetrahedra, fitted values, to show
   what the data-dependent mesh is worth under fitted values.
 
@@ -93,6 +93,9 @@ SPLITS = ("pv5", "kuhn6")
 #: that their range is r times the largest extent of the domain
 SCALES = ("raw", 1.0, 0.3, 0.1, 0.03)
 QUICK_SIZE = 16
+METHODS = ("decimate", "greedy", "paper")
+#: the methods whose vertex ratio (vertices to reach VTK + refit's E_RMS) is searched
+RATIO_METHODS = ("decimate", "greedy")
 
 
 # --------------------------------------------------------------------------- volumes
@@ -331,21 +334,21 @@ def delaunay_fit(data, selected):
     return score(A, data.values, least_squares_values(A, data.values, data.values[sel]))
 
 
-def _greedy_fit_errors(data, counts):
+def _fit_errors(data, method, counts):
     counts = sorted({int(c) for c in counts})
-    N = data.n_points
-    r = trivsel.reduce(data, fractions=[c / N for c in counts], method="greedy", values=["fit"])
+    r = trivsel.reduce(data, count=counts[-1], fractions=[c / data.n_points for c in counts[:-1]],
+                       method=method, values=["fit"])
     return {int(s.n_selected): s.fit["errors"]["E_rms"] for s in r.snapshots}
 
 
-def vertex_ratio(data, K, target, e_at_K, cap=4.0, steps=8):
-    """Smallest count (over the search grid) at which greedy with fitted values reaches E_RMS <= target,
+def vertex_ratio(data, K, target, e_at_K, cap=4.0, steps=8, method="greedy"):
+    """Smallest count (over the search grid) at which ``method`` with fitted values reaches E_RMS <= target,
     divided by K; ``inf`` above ``cap``, 0 below ``1 / cap``.  Returns ``(ratio, count, grid errors)``."""
     N = data.n_points
     lo_limit = 9  # above the 8 corners
     if e_at_K <= target:
         down = [max(lo_limit, round(K * cap ** (-j / steps))) for j in range(1, steps + 1)]
-        e = _greedy_fit_errors(data, down)
+        e = _fit_errors(data, method, down)
         e[K] = e_at_K
         grid = sorted(e, reverse=True)
         fail = next((c for c in grid if e[c] > target), None)
@@ -355,7 +358,7 @@ def vertex_ratio(data, K, target, e_at_K, cap=4.0, steps=8):
         lo = fail
     else:
         up = [min(N, round(K * cap ** (j / steps))) for j in range(1, steps + 1)]
-        e = _greedy_fit_errors(data, up)
+        e = _fit_errors(data, method, up)
         e[K] = e_at_K
         grid = sorted(e)
         hit = next((c for c in grid if e[c] <= target), None)
@@ -365,7 +368,7 @@ def vertex_ratio(data, K, target, e_at_K, cap=4.0, steps=8):
         lo = max(c for c in grid if c < hit)
     inner = sorted({int(round(lo + (hi - lo) * j / (steps + 1))) for j in range(1, steps + 1)} - {lo, hi})
     if inner:
-        e.update(_greedy_fit_errors(data, inner))
+        e.update(_fit_errors(data, method, inner))
     for c in sorted(c for c in e if lo < c <= hi):
         if e[c] <= target:
             return c / K, c, e
@@ -382,7 +385,7 @@ def _div(a, b):
     return a / b
 
 
-def measure(data, fraction, *, repeats=3, methods=("greedy", "paper"), splits=SPLITS, scales=SCALES,
+def measure(data, fraction, *, repeats=3, methods=METHODS, splits=SPLITS, scales=SCALES,
             stop="edges", seed=0, cap=4.0, say=print):
     """Every measurement of one (volume, fraction) row as a flat dict."""
     load = os.getloadavg()[0] if hasattr(os, "getloadavg") else float("nan")
@@ -413,14 +416,14 @@ def measure(data, fraction, *, repeats=3, methods=("greedy", "paper"), splits=SP
                     f"{m}_inf_over_vtk": _div(r["E_inf"], v["E_inf"]),
                     f"{m}_time_over_vtk": _div(r["seconds"], v["seconds"]),
                     f"{m}_fit_over_delaunay_fit": _div(r["fit_E_rms"], dl["E_rms"])})
-        if m == "greedy":
-            ratio, c, grid = vertex_ratio(data, count, v["refit_E_rms"], r["fit_E_rms"], cap=cap)
-            row["greedy_vertex_ratio"] = ratio
-            row["greedy_vertices_to_match_refit"] = c if c is not None else ""
-            row["greedy_ratio_search"] = " ".join(f"{k}:{grid[k]:.4g}" for k in sorted(grid))
+        if m in RATIO_METHODS:
+            ratio, c, grid = vertex_ratio(data, count, v["refit_E_rms"], r["fit_E_rms"], cap=cap, method=m)
+            row[f"{m}_vertex_ratio"] = ratio
+            row[f"{m}_vertices_to_match_refit"] = c if c is not None else ""
+            row[f"{m}_ratio_search"] = " ".join(f"{k}:{grid[k]:.4g}" for k in sorted(grid))
         say(f"    {m}: E_RMS {r['E_rms']:.4g} (fit {r['fit_E_rms']:.4g}, Delaunay+fit {dl['E_rms']:.4g}), "
             f"E_inf {r['E_inf']:.4g}, {r['seconds']:.2f} s" +
-            (f"; vertex ratio {_ratio_text(row['greedy_vertex_ratio'], cap)}" if m == "greedy" else "") +
+            (f"; vertex ratio {_ratio_text(row[f'{m}_vertex_ratio'], cap)}" if m in RATIO_METHODS else "") +
             f" ({time.perf_counter() - t1:.0f} s)")
     return row
 
@@ -445,8 +448,8 @@ def tables(rows, methods, cap=4.0):
     head = ["volume", "kept", "n_vertices", "VTK E_RMS", "VTK+refit E_RMS"]
     for m in methods:
         head += [f"{m} fit/VTK", f"{m} fit/refit", f"{m} E_inf/VTK", f"{m} time/VTK"]
-        if m == "greedy":
-            head.append("greedy vertex ratio")
+        if m in RATIO_METHODS:
+            head.append(f"{m} vertex ratio")
         head.append(f"{m} fit/Del+fit")
     L = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
@@ -455,8 +458,8 @@ def tables(rows, methods, cap=4.0):
         for m in methods:
             cells += [f"{r[f'{m}_fit_over_vtk']:.2f}", f"{r[f'{m}_fit_over_refit']:.2f}",
                       f"{r[f'{m}_inf_over_vtk']:.2f}", f"{r[f'{m}_time_over_vtk']:.2f}"]
-            if m == "greedy":
-                cells.append(_ratio_text(r["greedy_vertex_ratio"], cap))
+            if m in RATIO_METHODS:
+                cells.append(_ratio_text(r[f"{m}_vertex_ratio"], cap))
             cells.append(f"{r[f'{m}_fit_over_delaunay_fit']:.2f}")
         L.append("| " + " | ".join(cells) + " |")
     D = ["| volume | grid (spacing) | kept | VTK split, value weight | VTK E_RMS pv5 / kuhn6 | VTK E_RMS, raw values |"
@@ -488,14 +491,12 @@ def main(argv=None):
     ap.add_argument("--volumes", nargs="+", default=list(VOLUMES), choices=VOLUMES)
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.1, 0.05])
     ap.add_argument("--repeats", type=int, default=3, help="VTK seeds per split; trivsel timing calls (default 3)")
-    ap.add_argument("--methods", nargs="+", default=["greedy", "paper"], choices=["greedy", "paper"])
+    ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
     ap.add_argument("--vtk-stop", choices=["edges", "target"], default="edges",
                     help="SetNumberOfEdgesToDecimate(N - K) (default) or SetTargetReduction(1 - fraction)")
     ap.add_argument("--quick", action="store_true", help=f"{QUICK_SIZE}^3 crops of every volume (smoke test)")
     ap.add_argument("--out", type=Path, default=None, help="CSV path (default benchmarks/results/...)")
     a = ap.parse_args(argv)
-    if "greedy" not in a.methods:
-        a.methods.insert(0, "greedy")  # the vertex ratio needs it
     missing = missing_packages(a.volumes)
     if missing:
         raise SystemExit(f"bench_realdata: the real volumes need {' and '.join(missing)} (not installed): "

@@ -31,12 +31,12 @@ def test_measure_on_a_tiny_synthetic_volume():
     assert row["vtk_split"] in bench.SPLITS and row["vtk_scale"] in ("raw", 0.3)
     # the refit can only lower E_RMS: VTK's own values are one feasible choice
     assert row["vtk_refit_E_rms"] <= row["vtk_E_rms"] * (1 + 1e-9)
-    for m in ("greedy", "paper"):
+    for m in bench.METHODS:
         for k in ("fit_over_vtk", "fit_over_refit", "inf_over_vtk", "time_over_vtk", "fit_over_delaunay_fit"):
             assert math.isfinite(row[f"{m}_{k}"]) and row[f"{m}_{k}"] >= 0, (m, k)
         assert row[f"{m}_fit_E_rms"] <= row[f"{m}_E_rms"] * (1 + 1e-9)
-    assert row["greedy_vertex_ratio"] >= 0
-    ratios, details = bench.tables([row], ["greedy", "paper"])
+    assert row["greedy_vertex_ratio"] >= 0 and row["decimate_vertex_ratio"] >= 0
+    ratios, details = bench.tables([row], list(bench.METHODS))
     assert ratios.count("\n") == 2 and "| chirp | 10 % |" in ratios and "| chirp |" in details
 
 

@@ -172,37 +172,25 @@ def _moved(T, t, s, w, j):
 
 
 @njit(cache=True, _nrt=False)
-def _coords(P, T, t, s, j, x, y, z):
-    """Coordinate (x, y, z) of vertex j of tet t, with (x, y, z) in slot s."""
-    if j == s:
-        return x, y, z
-    q = T[t, j]
-    return P[q, 0], P[q, 1], P[q, 2]
-
-
-@njit(cache=True, _nrt=False)
-def _orient_at(P, T, t, s, x, y, z):
-    """orient3d of tet t with the point (x, y, z) in slot s (exact on integers)."""
-    a0, a1, a2 = _coords(P, T, t, s, 0, x, y, z)
-    b0, b1, b2 = _coords(P, T, t, s, 1, x, y, z)
-    c0, c1, c2 = _coords(P, T, t, s, 2, x, y, z)
-    d0, d1, d2 = _coords(P, T, t, s, 3, x, y, z)
-    return orient3d_value(a0, a1, a2, b0, b1, b2, c0, c1, c2, d0, d1, d2)
-
-
-@njit(cache=True, _nrt=False)
 def _planes(S, sc, n, G):
-    """For each of v's corners ``sc[i]``, the orientation of its tet as an affine function
-    of the point in v's slot: ``orient = G[i, :3] . x + G[i, 3]`` (the far face's plane),
-    so that moving v onto any w is tested with one dot product per tet."""
+    """For each of v's corners ``sc[i]`` (slot s of tet t), the orientation of t as an affine
+    function of the point x in slot s: ``orient = G[i, :3] . x + G[i, 3]``, so that moving v
+    onto any w is tested with one dot product per tet.
+
+    With a, b, c the other three vertices in order, ``orient(x, a, b, c) = -N . (x - a)``
+    for ``N = (b - a) x (c - a)``, and moving x from slot 0 to slot s is s transpositions."""
     P, T = S.P, S.T
     for i in range(n):
         t, s = sc[i] >> 2, sc[i] & 3
-        b = _orient_at(P, T, t, s, 0, 0, 0)
-        G[i, 0] = _orient_at(P, T, t, s, 1, 0, 0) - b
-        G[i, 1] = _orient_at(P, T, t, s, 0, 1, 0) - b
-        G[i, 2] = _orient_at(P, T, t, s, 0, 0, 1) - b
-        G[i, 3] = b
+        a = T[t, 1] if s == 0 else T[t, 0]
+        b = T[t, 2] if s <= 1 else T[t, 1]
+        c = T[t, 3] if s <= 2 else T[t, 2]
+        ux, uy, uz = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+        vx, vy, vz = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        sign = -1 if s % 2 == 0 else 1
+        G[i, 0], G[i, 1], G[i, 2] = sign * nx, sign * ny, sign * nz
+        G[i, 3] = -sign * (nx * P[a, 0] + ny * P[a, 1] + nz * P[a, 2])
 
 
 @njit(cache=True, _nrt=False)
