@@ -95,7 +95,9 @@ class State(NamedTuple):
         lock[p]       the box constraint (bits above)
         heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
                       queued); htgt[v] the target of v's cheapest collapse
-        acc[0]        the sum of squared residuals; ctr: [stamp, n_vertices, n_removed]
+        acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size]
+        scratch       sc a star's corners, G their far faces' planes, mark stamps of
+                      points (stamp[0] the last)
     """
 
     P: np.ndarray
@@ -120,15 +122,15 @@ class State(NamedTuple):
     hdeg: np.ndarray
     removed: np.ndarray
     sc: np.ndarray
-    sc2: np.ndarray
     G: np.ndarray
+    stamp: np.ndarray
     pbuf: np.ndarray
     aff: np.ndarray
     acc: np.ndarray
     ctr: np.ndarray
 
 
-C_STAMP, C_NV, C_NREM, C_HN = 0, 1, 2, 3
+C_NV, C_NREM, C_HN = 0, 1, 2
 
 # ----------------------------------------------------------------------------- geometry
 
@@ -310,7 +312,7 @@ def _cost(S, v, w, sc, n, G, tol_inf):
 
 
 @njit(cache=True, _nrt=False)
-def _best(S, v, sc, G, tol_inf):
+def _best(S, v, sc, G, mark, tol_inf):
     """v's cheapest valid collapse ``(cost, w, tets of w after)`` over its neighbours w
     (ties: fewer tets around w, then the smaller w); ``(inf, -1, 0)`` if none."""
     n = _star(S, v, sc)
@@ -318,16 +320,16 @@ def _best(S, v, sc, G, tol_inf):
     if n < 0:
         return best, bw, be
     _planes(S, sc, n, G)
-    S.ctr[C_STAMP] += 1
-    stamp = S.ctr[C_STAMP]
-    S.mark[v] = stamp
+    S.stamp[0] += 1
+    stamp = S.stamp[0]
+    mark[v] = stamp
     for i in range(n):
         t = sc[i] >> 2
         for j in range(4):
             w = S.T[t, j]
-            if S.mark[w] == stamp:
+            if mark[w] == stamp:
                 continue
-            S.mark[w] = stamp
+            mark[w] = stamp
             if not _allowed(S, v, w):
                 continue
             c, shared = _cost(S, v, w, sc, n, G, tol_inf)
@@ -466,16 +468,17 @@ def _init(S, tol_inf):
     for t in range(M - 1, -1, -1):
         for j in range(3, -1, -1):
             _link(S, S.T[t, j], 4 * t + j)
-    for v in range(S.P.shape[0]):
-        key, w, d = _best(S, v, S.sc, S.G, tol_inf)
-        _queue(S, v, key, w, d)
+    N = S.P.shape[0]
+    for v in range(N):
+        S.aff[v] = v
+    _evaluate(S, S.aff, N, tol_inf)
 
 
 @njit(cache=True, _nrt=False)
 def _run(S, stop_count, sse_max, tol_inf):
     """Collapse until ``stop_count`` vertices remain (0), the cheapest collapse would take the
     squared-residual sum above ``sse_max`` (2), or no valid collapse is left (1)."""
-    sc, sc2, aff = S.sc, S.sc2, S.aff
+    sc, aff, mark = S.sc, S.aff, S.mark
     while S.ctr[C_NV] > stop_count:
         if S.ctr[C_HN] == 0:
             return 1
@@ -485,16 +488,16 @@ def _run(S, stop_count, sse_max, tol_inf):
             return 2
         n = _star(S, v, sc)
         # the vertices whose tets change: their collapses are evaluated again
-        S.ctr[C_STAMP] += 1
-        stamp = S.ctr[C_STAMP]
-        S.mark[v] = stamp
+        S.stamp[0] += 1
+        stamp = S.stamp[0]
+        mark[v] = stamp
         na = 0
         for i in range(n):
             t = sc[i] >> 2
             for j in range(4):
                 u = S.T[t, j]
-                if S.mark[u] != stamp:
-                    S.mark[u] = stamp
+                if mark[u] != stamp:
+                    mark[u] = stamp
                     aff[na] = u
                     na += 1
         _collapse(S, v, w, sc, n)
@@ -502,11 +505,16 @@ def _run(S, stop_count, sse_max, tol_inf):
         S.removed[S.ctr[C_NREM]] = v
         S.ctr[C_NREM] += 1
         S.ctr[C_NV] -= 1
-        for i in range(na):
-            u = aff[i]
-            key, x, d = _best(S, u, sc2, S.G, tol_inf)
-            _queue(S, u, key, x, d)
+        _evaluate(S, aff, na, tol_inf)
     return 0
+
+
+@njit(cache=True, _nrt=False)
+def _evaluate(S, verts, m, tol_inf):
+    """Queue the cheapest collapses of ``verts[:m]``."""
+    for i in range(m):
+        key, x, d = _best(S, verts[i], S.sc, S.G, S.mark, tol_inf)
+        _queue(S, verts[i], key, x, d)
 
 
 @njit(cache=True)
@@ -559,12 +567,12 @@ class Decimation:
                        cprev=np.full(4 * M, -1, np.int64), phead=np.full(M, -1, np.int64),
                        pnext=np.full(N, -1, np.int64), ptet=np.full(N, -1, np.int64), res=np.zeros(N),
                        isv=np.ones(N, np.bool_), lock=lk, hv=np.zeros(N, np.int64), hpos=np.full(N, -1, np.int64),
-                       hkey=np.full(N, INF), htgt=np.full(N, -1, np.int64), mark=np.zeros(N, np.int64), deg=np.zeros(N, np.int64),
-                       hdeg=np.zeros(N, np.int64),
-                       removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64), sc2=np.zeros(STAR_CAPACITY, np.int64),
-                       G=np.zeros((STAR_CAPACITY, 4), np.int64),
+                       hkey=np.full(N, INF), htgt=np.full(N, -1, np.int64), hdeg=np.zeros(N, np.int64),
+                       deg=np.zeros(N, np.int64), mark=np.zeros(N, np.int64),
+                       removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64),
+                       G=np.zeros((STAR_CAPACITY, 4), np.int64), stamp=np.zeros(1, np.int64),
                        pbuf=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                       ctr=np.array([0, N, 0, 0], np.int64))
+                       ctr=np.array([N, 0, 0], np.int64))
         _init(self.S, self.tol_inf)
 
     @property
