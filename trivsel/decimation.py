@@ -1,4 +1,4 @@
-"""Bottom-up selection by half-edge collapse (``method="decimate"``), beyond the paper.
+r"""Bottom-up selection by half-edge collapse (``method="decimate"``), beyond the paper.
 
 The paper builds its mesh top-down: from the hull points, insert points in curvature
 order (sections 3-4).  Decimation goes the other way.  Start from every grid point,

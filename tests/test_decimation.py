@@ -1,0 +1,173 @@
+"""Decimation by half-edge collapses (``method="decimate"``, :mod:`trivsel.decimation`).
+
+Every mesh is checked by the independent checker (positive volumes on integer
+coordinates, every face in two tets or on the box, the box's volume filled), and the
+residuals are checked against a brute-force evaluation of the interpolant that does
+not use the kernel's buckets.
+"""
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+import trivsel
+from trivsel.blocks import check_tetrahedra
+from trivsel.cli import main
+from trivsel.data import grid_from_array
+from trivsel.decimation import Decimation, grid_tetrahedra
+
+
+def brute_force_residuals(ijk, values, tets):
+    """f - L at every point, L found by testing every tet (exact integer barycentrics)."""
+    P = np.asarray(ijk, np.int64)
+    T = np.asarray(tets, np.int64)
+    q = P[T]  # (M, 4, 3)
+    res = np.full(len(P), np.nan)
+    for p in range(len(P)):
+        lam = np.empty((len(T), 4), np.int64)
+        for s in range(4):
+            r = q.copy()
+            r[:, s] = P[p]
+            d = r[:, 1:] - r[:, :1]
+            lam[:, s] = np.linalg.det(d.astype(float)).round().astype(np.int64)
+        inside = np.flatnonzero(np.all(lam >= 0, axis=1))
+        assert inside.size, f"point {p} is in no tetrahedron"
+        t = inside[0]
+        res[p] = values[p] - lam[t] @ values[T[t]] / lam[t].sum()
+    return res
+
+
+# a constant slab over a ramp, a step and noise: zero-cost collapses, ties and real costs
+def slab_volume(shape=(6, 7, 5)):
+    i, j, k = np.meshgrid(*(np.arange(n) for n in shape), indexing="ij")
+    rng = np.random.default_rng(3)
+    return np.where(i < 3, 0.0, 0.5 * j + (k > 2) + 0.1 * rng.normal(size=shape))
+
+
+@pytest.mark.parametrize("shape", [(2, 2, 2), (3, 2, 5), (4, 4, 4)])
+def test_the_kuhn_split_fills_the_grid(shape):
+    T = grid_tetrahedra(shape)
+    assert T.shape == (6 * int(np.prod(np.asarray(shape) - 1)), 4)
+    check_tetrahedra(shape, T)
+
+
+def test_every_stage_of_a_run_is_a_valid_mesh_with_exact_residuals():
+    data = grid_from_array(slab_volume())
+    dec = Decimation(data.ijk, data.shape, data.values)
+    N = data.n_points
+    for count in (150, 60, 25, 9):
+        assert dec.run(count) == 0 and dec.n_vertices == count
+        T = dec.tetrahedra()
+        check_tetrahedra(data.shape, T)
+        assert np.array_equal(np.unique(T), dec.vertices())
+        r = dec.residuals()
+        assert np.allclose(r, brute_force_residuals(data.ijk, data.values, T), atol=1e-12)
+        assert np.isclose(dec.sse, np.sum(r * r), rtol=1e-9, atol=1e-12)
+        verts, w = dec.point_weights()
+        assert np.allclose(data.values - (w * data.values[verts]).sum(1), r, atol=1e-12)
+    assert len(dec.removed()) == N - 9
+
+
+@settings(deadline=None, max_examples=25)
+@given(st.tuples(st.integers(2, 5), st.integers(2, 5), st.integers(2, 5)), st.integers(0, 2**31),
+       st.sampled_from(["normal", "integers", "flat"]), st.floats(0.0, 0.9))
+def test_any_grid_and_values_give_a_valid_mesh(shape, seed, kind, keep):
+    rng = np.random.default_rng(seed)
+    if kind == "normal":
+        a = rng.normal(size=shape)
+    elif kind == "integers":
+        a = rng.integers(0, 3, size=shape).astype(float)
+    else:
+        a = np.zeros(shape)
+    data = grid_from_array(a)
+    dec = Decimation(data.ijk, data.shape, data.values)
+    dec.run(max(8, int(keep * data.n_points)))
+    T = dec.tetrahedra()
+    check_tetrahedra(data.shape, T)
+    # the 8 corners never move
+    corners = [np.ravel_multi_index(c, shape) for c in np.ndindex(2, 2, 2)
+               for c in [tuple(ci * (n - 1) for ci, n in zip(c, shape))]]
+    assert set(corners) <= set(dec.vertices().tolist())
+    assert np.allclose(dec.residuals(), brute_force_residuals(data.ijk, data.values, T), atol=1e-9)
+
+
+def test_a_linear_volume_decimates_to_its_corners_with_no_error():
+    i, j, k = np.meshgrid(np.arange(6), np.arange(5), np.arange(4), indexing="ij")
+    data = grid_from_array(1.5 * i - 2.0 * j + 0.25 * k + 3.0)
+    r = trivsel.reduce(data, count=8, method="decimate")
+    s = r.snapshots[-1]
+    assert s.n_selected == 8 and s.errors["E_inf"] < 1e-12
+    check_tetrahedra(data.shape, s.tets)
+
+
+def test_reduce_snapshots_prefix_and_fit():
+    data = grid_from_array(slab_volume())
+    N = data.n_points
+    r = trivsel.reduce(data, fractions=[0.1, 0.3], count=40, method="decimate", values=["data", "fit"])
+    counts = [s.n_selected for s in r.snapshots]
+    assert counts == sorted(counts) and counts[0] == round(0.1 * N)
+    for s in r.snapshots:
+        check_tetrahedra(data.shape, s.tets)
+        assert set(s.selected.tolist()) == set(np.unique(s.tets).tolist())
+        assert np.array_equal(s.selected, r.selected[: s.n_selected])
+        assert s.fit["errors"]["E_rms"] <= s.errors["E_rms"] * (1 + 1e-12)
+    assert r.curvature is None and len(r.order) == N - 8
+    # the same run again: identical
+    r2 = trivsel.reduce(data, fractions=[0.1, 0.3], count=40, method="decimate")
+    for a, b in zip(r.snapshots, r2.snapshots):
+        assert np.array_equal(a.tets, b.tets) and np.array_equal(a.residuals, b.residuals)
+
+
+def test_a_spacing_changes_nothing_but_the_coordinates():
+    a = slab_volume()
+    r1 = trivsel.reduce(grid_from_array(a), fractions=[0.2], method="decimate")
+    r2 = trivsel.reduce(grid_from_array(a, origin=(5.0, -1.0, 2.0), spacing=(4.0, 4.0, 5.0)), fractions=[0.2],
+                        method="decimate")
+    s1, s2 = r1.snapshots[-1], r2.snapshots[-1]
+    assert np.array_equal(s1.tets, s2.tets) and np.allclose(s1.residuals, s2.residuals)
+
+
+def test_tolerances_stop_at_the_last_collapse_within_them():
+    data = grid_from_array(slab_volume())
+    tol = 0.05
+    r = trivsel.reduce(data, tol_rms=tol, method="decimate")
+    s = r.snapshots[-1]
+    assert s.errors["E_rms"] <= tol
+    # one more collapse on the same path goes above the tolerance
+    nxt = trivsel.reduce(data, count=s.n_selected - 1, method="decimate").snapshots[-1]
+    assert nxt.errors["E_rms"] > tol
+    r = trivsel.reduce(data, tol_inf=0.2, method="decimate")
+    s = r.snapshots[-1]
+    assert np.abs(s.residuals).max() <= 0.2 and s.n_selected < data.n_points // 2
+    check_tetrahedra(data.shape, s.tets)
+
+
+def test_interior_candidates_keep_every_box_point():
+    data = grid_from_array(slab_volume())
+    r = trivsel.reduce(data, count=170, method="decimate", candidates="interior")
+    s = r.snapshots[-1]
+    boundary = np.flatnonzero(~data.interior_mask())
+    assert set(boundary.tolist()) <= set(s.selected.tolist())
+    check_tetrahedra(data.shape, s.tets)
+
+
+@pytest.mark.parametrize("call, message", [
+    (lambda: trivsel.reduce(trivsel.scattered(np.random.default_rng(1).random((50, 3)), np.zeros(50)), count=20,
+                                  method="decimate"), "needs grid data"),
+    (lambda: trivsel.reduce(4, n=4, count=7, method="decimate"), "fewer than the 8 points"),
+    (lambda: trivsel.reduce(4, n=4, count=20, method="decimate",
+                            boundary=np.array([[0, 1, 2]])), "prescribed boundary"),
+])
+def test_bad_requests_give_one_line(call, message):
+    with pytest.raises(trivsel.InputError, match=message) as exc:
+        call()
+    assert "\n" not in str(exc.value)
+
+
+def test_command_line(tmp_path):
+    out = tmp_path / "out"
+    assert main(["reduce", "--function", "4", "--n", "6", "--method", "decimate", "--fractions", "0.2",
+                 "--values", "data", "fit", "--out", str(out)]) == 0
+    text = (out / "errors.csv").read_text()
+    assert "decimate" in text and "fit" in text
