@@ -670,3 +670,13 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
         snaps.append(s)
     stats = {"collapses": int(len(removed)), "tets": int(dec.S.alive.sum())}
     return snaps, selected, stats, sum(t for _, t in shots)
+
+
+def compile_kernels():
+    """Compile (or load from numba's cache) every kernel of a decimation, with a run on a
+    3 x 3 x 3 grid; returns the number of entry kernels (the others are compiled into them)."""
+    g = np.indices((3, 3, 3)).reshape(3, -1).T
+    dec = Decimation(g, (3, 3, 3), np.arange(27.0) % 5)
+    dec.run(8)
+    dec.point_weights()
+    return sum(1 for f in (_init, _run, _weights) if f.signatures)

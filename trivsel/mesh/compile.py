@@ -112,10 +112,11 @@ def compile_kernels(method="paper", part=None):
 
     Parameters
     ----------
-    method : {"paper", "greedy"}
-        The method the kernels are for.  Both methods run the same kernels up to
-        the driver, and parts 2 and None compile both drivers, so it only is
-        checked.
+    method : {"paper", "greedy", "decimate"}
+        The method the kernels are for.  The insertion methods run the same
+        kernels up to the driver, and parts 2 and None compile both drivers;
+        ``"decimate"`` compiles :mod:`trivsel.decimation`'s kernel whatever the
+        part.
     part : {None, 0, 1, 2}
         ``0``: swapping (section 4: 2-3, 3-2, 4-4 and 2-2 flips) and the
         evaluation of configurations, with the replacement of tets
@@ -134,10 +135,14 @@ def compile_kernels(method="paper", part=None):
     """
     from numba import typeof, types as nt
 
-    if method not in ("paper", "greedy"):
-        raise ValueError(f"unknown method {method!r}: choose 'paper' or 'greedy'")
+    if method not in ("paper", "greedy", "decimate"):
+        raise ValueError(f"unknown method {method!r}: choose 'paper', 'greedy' or 'decimate'")
     if part not in (None,) + PARTS:
         raise ValueError(f"unknown part {part!r}: choose 0, 1, 2 or None (all)")
+    if method == "decimate":  # its own small kernel: every part compiles all of it
+        from ..decimation import compile_kernels as compile_decimation
+
+        return compile_decimation()
     if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
         return 0
     ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
