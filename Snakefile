@@ -10,6 +10,7 @@
 # Optional stage methods (config/methods.yaml): every method at matched vertex counts.
 # Optional stage ablation (config/ablation.yaml): the open choices against Table 1.
 # Optional stage scale (config/scale.yaml): time and memory against points, trivsel vs VTK.
+# Optional stage realdata (config/realdata.yaml): trivsel vs VTK on real volumes.
 # Results layout: results/README.md.
 
 from snakemake.utils import min_version, validate
@@ -38,6 +39,7 @@ include: "workflow/rules/report.smk"
 include: "workflow/rules/methods.smk"
 include: "workflow/rules/ablation.smk"
 include: "workflow/rules/scale.smk"
+include: "workflow/rules/realdata.smk"
 
 
 # Jobs that only collect or copy files run on the submitting host, not as cluster jobs.
@@ -48,6 +50,8 @@ localrules:
     ablation_report,
     scale_table,
     scale_figure,
+    realdata_table,
+    realdata_figure,
 
 
 rule all:
@@ -55,4 +59,5 @@ rule all:
         all_targets(),
         ABLATION_TARGETS,
         SCALE_TARGETS,
+        REALDATA_TARGETS,
     default_target: True

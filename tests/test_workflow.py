@@ -107,7 +107,7 @@ def test_sweep_configs_are_valid(sweep):
     assert list_lengths(cfg) > list_lengths(validate(paper_config()))  # a longer list than the paper's
 
 
-@pytest.mark.parametrize("stage", ["methods.yaml", "ablation.yaml", "scale.yaml"])
+@pytest.mark.parametrize("stage", ["methods.yaml", "ablation.yaml", "scale.yaml", "realdata.yaml"])
 def test_stage_configs_are_valid(stage):
     extra = yaml.safe_load((REPO / "config" / stage).read_text())
     cfg = validate(merged(paper_config(), extra))
@@ -241,6 +241,7 @@ def test_schema_fills_defaults():
     assert cfg["reduce"]["fractions"] == [0.5, 0.2, 0.1]
     assert cfg["golden"] == {"table": "", "rtol": 1e-6, "atol": 0.0} and cfg["report"]["figures_3d"] is True
     assert cfg["methods"]["activate"] is False and cfg["scale"]["n"] == [16, 32, 64, 128]
+    assert cfg["realdata"]["activate"] is False and cfg["realdata"]["fractions"] == [0.1, 0.05]
     assert cfg["reduce"]["options"] == {}  # omitted options take the defaults of trivsel.Options
     paper = paper_config()
     assert validate(copy.deepcopy(paper)) == paper  # config.yaml spells out every section
@@ -274,6 +275,57 @@ def test_slurm_profile_dry_run(tmp_path):
     assert "mem_mb=1218" in blocks["reduce"] and "runtime=7" in blocks["reduce"], blocks["reduce"]  # scaled with n
     assert "mem_mb=4000" in blocks["slice_figure"] and "runtime=15" in blocks["slice_figure"]  # set-resources
     assert "disk_mb=1000" in blocks["sample"]
+
+
+REALDATA_TARGETS = ["results/report/realdata.md", "results/report/realdata.csv"]
+
+
+@pytest.mark.slow
+def test_realdata_stage_dry_run(tmp_path):
+    """config/realdata.yaml adds one run and one figure per volume and the table; without it no
+    realdata job is planned."""
+    write_config(tmp_path)
+    r = run_smk(tmp_path, "--dry-run", "--quiet", "rules")
+    assert r.returncode == 0, r.output
+    assert planned(r.output, "realdata_run") == 0 and planned(r.output, "realdata_table") == 0, r.output
+    r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--configfile", str(tmp_path / "config.yaml"),
+                str(REPO / "config" / "realdata.yaml"))
+    assert r.returncode == 0, r.output
+    assert planned(r.output, "realdata_run") == 5 and planned(r.output, "realdata_figure") == 5, r.output
+    assert planned(r.output, "realdata_table") == 1, r.output
+
+
+def test_realdata_schema_rejects_an_unknown_volume():
+    cfg = merged(paper_config(), {"realdata": {"activate": True, "volumes": ["chirp", "brain"]}})
+    with pytest.raises(Exception, match="'brain' is not one of"):
+        validate(cfg)
+
+
+@pytest.mark.slow
+def test_realdata_stage_quick_for_real(tmp_path):
+    """The stage on 16^3 crops of the synthetic volumes at one fraction, one VTK run per setting."""
+    volumes = ["chirp", "steps"]
+    write_config(tmp_path, {"realdata": {"activate": True, "volumes": volumes, "fractions": [0.1],
+                                         "curve_fractions": [0.1], "repeats": 1, "quick": True}})
+    figures = [f"results/report/figures/realdata_{v}.png" for v in volumes]
+    r = run_smk(tmp_path, *REALDATA_TARGETS, *figures)
+    assert r.returncode == 0, r.output[-5000:]
+    methods = ["decimate", "greedy", "paper"]
+    check = pd.read_csv(tmp_path / "results" / "report" / "realdata.csv")
+    assert list(check.method) == methods * 2 and list(check.volume) == ["chirp"] * 3 + ["steps"] * 3
+    assert set(check["all"]) <= {"pass", "fail"} and set(check.ratio_le_1.fillna("n/a")) <= {"pass", "fail", "n/a"}
+    md = (tmp_path / "results" / "report" / "realdata.md").read_text()
+    assert "## Targets" in md and "| steps | 10 % |" in md and "![chirp](figures/realdata_chirp.png)" in md
+    for v in volumes:
+        rows = pd.read_csv(tmp_path / "results" / "realdata" / f"{v}.csv")
+        assert len(rows) == 1
+        assert rows.loc[0, "shape"] == "16x16x16" and all(f"{m}_fit_E_rms" in rows for m in methods)
+        curves = pd.read_csv(tmp_path / "results" / "realdata" / f"{v}_curves.csv")
+        assert set(curves.method) == {*methods, "vtk"} and len(curves) == 2 * (len(methods) + 1)
+        assert (tmp_path / f"results/report/figures/realdata_{v}.png").stat().st_size > 10_000
+        for name in (f"realdata_run/{v}", f"realdata_figure/{v}"):
+            assert (tmp_path / "results" / "logs" / f"{name}.log").exists()
+            assert (tmp_path / "results" / "benchmarks" / f"{name}.tsv").exists()
 
 
 @pytest.fixture(scope="module")

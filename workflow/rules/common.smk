@@ -36,6 +36,7 @@ for _key, _values in [
     ("methods: random_seeds", config["methods"]["random_seeds"]),
     ("scale: n", config["scale"]["n"]),
     ("scale: function", config["scale"]["function"]),
+    ("realdata: repeats", config["realdata"]["repeats"]),
 ]:
     _require_ints(_key, _values)
 
@@ -153,7 +154,7 @@ def variant_cli_args(wildcards):
 # affected jobs (the package is not a script, so Snakemake would not see it).
 # CODE_CORE covers the library (trivsel/**/*.py, subpackages such as trivsel/mesh/
 # included) but not the studies (trivsel/study/), which the report, figure, methods,
-# ablation and scale rules hash by module.
+# ablation, scale and realdata rules hash by module.
 _PKG_DIR = Path(importlib.util.find_spec("trivsel").origin).parent
 
 
@@ -184,6 +185,8 @@ CODE_ABLATION = CODE_CORE + source_hash("study/ablation.py", *_PUBLISHED)
 CODE_ABLATION_REPORT = source_hash("study/ablation.py", "study/report.py", *_PUBLISHED)
 CODE_SCALE = CODE_CORE + source_hash("study/scaling.py", "study/baselines.py")
 CODE_SCALE_REPORT = source_hash("study/scaling.py", "study/figures.py")
+CODE_REALDATA = CODE_CORE + source_hash("study/realdata.py", "study/baselines.py")
+CODE_REALDATA_REPORT = source_hash("study/realdata.py", "study/figures.py")
 CODE_GOLDEN = source_hash("regression.py")
 
 
