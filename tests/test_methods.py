@@ -124,10 +124,10 @@ def test_harness_has_every_method_and_value_mode(small_comparison):
     df = small_comparison
     assert list(df.columns[:len(COLUMNS)]) == COLUMNS
     pairs = set(zip(df["method"], df["values"]))
-    for m in ("paper", "greedy", "greedy-sse"):
+    for m in ("paper", "greedy", "greedy-sse", "decimate"):
         assert {(m, "data"), (m, "fit")} <= pairs
     assert {("vtk", "free"), ("random-delaunay", "data"), ("curvature-delaunay", "data")} <= pairs
-    assert len(df) == 3 * (6 + 3)
+    assert len(df) == 3 * (8 + 3)
     assert (df[df["method"] == "vtk"]["runs"] == 5).all()
     assert (df[df["method"] == "random-delaunay"]["runs"] == 3).all()
 

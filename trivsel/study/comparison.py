@@ -12,6 +12,9 @@ method                 values    what
 ``greedy-sse``         data/fit  the same with ``greedy_key="sse"`` (worst point of the tet
                                  with the largest squared error: aims at E_RMS)
 ``paper``              data/fit  Hamann & Chen (1994): curvature order, data-dependent swapping
+``decimate``           data/fit  bottom-up: half-edge collapses from the full grid, cheapest
+                                 increase of the squared error first (``reduce(method="decimate")``;
+                                 grids)
 ``vtk``                free      VTK's ``vtkUnstructuredGridQuadricDecimation``, vertex
                                  positions and values chosen by VTK; median of ``vtk_runs``
                                  runs (seeds ``seed .. seed + runs - 1``), min/max spread
@@ -71,7 +74,7 @@ __all__ = [
 ]
 
 #: Method names in display order.
-METHODS = ("greedy", "greedy-sse", "paper", "vtk", "random-delaunay", "curvature-delaunay")
+METHODS = ("greedy", "greedy-sse", "paper", "decimate", "vtk", "random-delaunay", "curvature-delaunay")
 _VALUES_ORDER = ("data", "fit", "free")
 
 #: Columns of methods.csv: the ten that define the comparison first (n and the matching columns beside them),
@@ -163,6 +166,8 @@ def compare_methods(data, fractions=(0.5, 0.2, 0.1), *, n=16, methods=METHODS, v
     curvature_seconds = None
     runs = [("paper", dict(method="paper")), ("greedy", dict(method="greedy", greedy_key="max")),
             ("greedy-sse", dict(method="greedy", greedy_key="sse"))]
+    if data.is_grid:
+        runs.append(("decimate", dict(method="decimate")))
     for name, kw in runs:
         if name not in methods and not (name == "paper" and "curvature-delaunay" in methods):
             continue
@@ -412,6 +417,11 @@ def methods_markdown(df, fractions=None, *, figures=None):
         if len(alt):
             L.append(f"With the E_RMS-aimed key (`--greedy-key sse`, method `greedy-sse`): E_RMS lower "
                      f"in {int(alt['holds_rms'].sum())} of {len(alt)} cells, E_inf in {int(alt['holds_inf'].sum())}.")
+        dec = target_check(df[df["n"] == n], fractions, method="decimate")
+        if len(dec):
+            L.append(f"With bottom-up decimation (`--method decimate`, fitted values): E_RMS lower in "
+                     f"{int(dec['holds_rms'].sum())} of {len(dec)} cells, E_inf (data values) in "
+                     f"{int(dec['holds_inf'].sum())}.")
         sp = _speed_line(df[df["n"] == n], fractions)
         if sp:
             L.append(sp)
@@ -510,6 +520,7 @@ _STYLE = {
     "greedy": ("C0", "o"),
     "greedy-sse": ("C9", "v"),
     "paper": ("C3", "s"),
+    "decimate": ("C4", "P"),
     "vtk": ("k", "D"),
     "random-delaunay": ("C2", "^"),
     "curvature-delaunay": ("C1", "x"),
