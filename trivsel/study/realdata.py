@@ -696,8 +696,9 @@ def curves(data, fractions, *, methods=METHODS, repeats=3, splits=SPLITS, scales
 
     Each trivsel method is one ``trivsel.reduce(data, fractions=..., method=m, values=["data", "fit"])``
     call, its snapshots giving the rows (``values`` ``data`` and ``fit``; ``seconds``: the run's wall
-    time from its start to that snapshot).  VTK is :func:`run_vtk` at each fraction (its best split
-    and weight, the median of ``repeats`` runs): method ``vtk`` with values ``free`` (VTK's own
+    time from its start to that snapshot).  VTK is :func:`run_vtk` at each fraction (the split and
+    weight it screens best at the fraction nearest 10 %, kept for the others; the median of ``repeats``
+    runs): method ``vtk`` with values ``free`` (VTK's own
     optimised values) and ``fit`` (VTK + refit: least-squares values on VTK's meshes); both rows carry
     VTK's decimation time (the refit's solve is not timed).
 
@@ -733,8 +734,12 @@ def curves(data, fractions, *, methods=METHODS, repeats=3, splits=SPLITS, scales
                              "n_target": count_for_fraction(f, N), "n_vertices": int(s.n_selected),
                              "E_rms": e["E_rms"], "E_inf": e["E_inf"], "seconds": float(s.seconds)})
         say(f"    curve {m}: {len(fractions)} snapshots in {time.perf_counter() - t0:.1f} s")
+    # VTK's split and value weight are screened once, at the fraction nearest 10 %, and kept
+    first = min(fractions, key=lambda f: abs(f - 0.1))
+    v0 = run_vtk(data, first, repeats=repeats, splits=splits, scales=scales, stop=stop, seed=seed, say=say)
     for f in fractions:
-        v = run_vtk(data, f, repeats=repeats, splits=splits, scales=scales, stop=stop, seed=seed, say=say)
+        v = v0 if f == first else run_vtk(data, f, repeats=repeats, splits=(v0["split"],), scales=(v0["scale"],),
+                                           stop=stop, seed=seed, say=say)
         for values, (e_rms, e_inf) in (("free", (v["E_rms"], v["E_inf"])),
                                        ("fit", (v["refit_E_rms"], v["refit_E_inf"]))):
             rows.append({"volume": data.name, "method": "vtk", "values": values, "fraction": f,
