@@ -9,7 +9,8 @@ piecewise trilinear approximation*.  Modules follow the paper:
 * :mod:`trivsel.curvature` - absolute curvature (section 2, eqs. 4-10);
 * :mod:`trivsel.selection` - ranking and stopping (section 3);
 * :mod:`trivsel.mesh` - the data-dependent tetrahedral mesh (section 4);
-* :mod:`trivsel.methods` - the point-selection methods (``paper``, ``greedy``);
+* :mod:`trivsel.methods` - the point-selection methods (``paper``, ``greedy``, ``decimate``);
+* :mod:`trivsel.decimation` - bottom-up selection by half-edge collapses (``decimate``);
 * :mod:`trivsel.norms` - E_RMS and E_inf (section 5, eqs. 19-20);
 * :mod:`trivsel.fitting` - least-squares vertex values on a mesh;
 * :mod:`trivsel.options` - every option, defined once (:class:`Options`);
@@ -38,7 +39,7 @@ _LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"),
          "write_outputs": ("io", "write_outputs"), "PointData": ("data", "PointData"),
          "grid_from_array": ("data", "grid_from_array"), "sample_grid": ("data", "sample_grid"),
          "scattered": ("data", "scattered"), "FUNCTIONS": ("functions", "FUNCTIONS")}
-_SUBMODULES = {"blocks", "cli", "curvature", "data", "exceptions", "faces", "fitting", "functions", "io", "mesh",
+_SUBMODULES = {"blocks", "cli", "curvature", "data", "decimation", "exceptions", "faces", "fitting", "functions", "io", "mesh",
                "methods", "norms", "options", "pieces", "predicates", "reduction", "regions", "regression",
                "resources", "selection", "study", "triangulation"}
 
