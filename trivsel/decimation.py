@@ -272,7 +272,7 @@ def _allowed(S, v, w):
 
 
 @njit(cache=True, _nrt=False)
-def _cost(S, v, w, sc, n, G, tol_inf):
+def _cost(S, v, w, sc, n, G, tol_inf, old, bound):
     """``(cost, shared)``: the change of the squared-residual sum if v moves onto w (v's
     corners ``sc[:n]``, their planes ``G``), or inf if the collapse is invalid (a tet
     would not keep a positive volume) or takes a residual above ``tol_inf`` (negative:
@@ -295,20 +295,22 @@ def _cost(S, v, w, sc, n, G, tol_inf):
     r = f[v] - val
     if 0.0 <= tol_inf < abs(r):
         return INF, shared
-    delta = r * r
+    new = r * r
     for i in range(n):
         t0 = sc[i] >> 2
         p = S.phead[t0]
         while p >= 0:
+            if new - old > bound:  # the rest only adds: no better than the best so far
+                return INF, shared
             t, val = _locate_moved(S, sc, n, v, w, p, t0)
             if t < 0:
                 return INF, shared
             r = f[p] - val
             if 0.0 <= tol_inf < abs(r):
                 return INF, shared
-            delta += r * r - S.res[p] * S.res[p]
+            new += r * r
             p = S.pnext[p]
-    return delta, shared
+    return new - old, shared
 
 
 @njit(cache=True, _nrt=False)
@@ -320,19 +322,28 @@ def _best(S, v, sc, G, mark, tol_inf):
     if n < 0:
         return best, bw, be
     _planes(S, sc, n, G)
+    # the squared residuals that the collapse replaces (v's own is 0)
+    old = 0.0
+    for i in range(n):
+        p = S.phead[sc[i] >> 2]
+        while p >= 0:
+            old += S.res[p] * S.res[p]
+            p = S.pnext[p]
     S.stamp[0] += 1
     stamp = S.stamp[0]
     mark[v] = stamp
-    for i in range(n):
-        t = sc[i] >> 2
-        for j in range(4):
-            w = S.T[t, j]
-            if mark[w] == stamp:
+    # v's last target first: it is often still the best, and a good first bound prunes the
+    # others early (the argmin, ties included, does not depend on the order)
+    first = S.htgt[v]
+    for i in range(-1, n):
+        for j in range(1 if i < 0 else 4):
+            w = first if i < 0 else S.T[sc[i] >> 2, j]
+            if w < 0 or mark[w] == stamp:
                 continue
             mark[w] = stamp
-            if not _allowed(S, v, w):
+            if not S.isv[w] or not _allowed(S, v, w):
                 continue
-            c, shared = _cost(S, v, w, sc, n, G, tol_inf)
+            c, shared = _cost(S, v, w, sc, n, G, tol_inf, old, best)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
