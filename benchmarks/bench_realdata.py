@@ -69,6 +69,8 @@ from pathlib import Path
 # The library part (volumes, VTK runs, scoring, tables) is trivsel.study.realdata; this file is
 # the command line.
 from trivsel.study.realdata import (
+    ALL_VOLUMES,
+    HELD_OUT,
     METHODS,
     QUICK_SIZE,
     SYNTHETIC,
@@ -85,7 +87,8 @@ from trivsel.study.realdata import (
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--volumes", nargs="+", default=list(VOLUMES), choices=VOLUMES)
+    ap.add_argument("--volumes", nargs="+", default=list(VOLUMES), choices=ALL_VOLUMES,
+                    help=f"default: {' '.join(VOLUMES)}; held out (not tuned on): {' '.join(HELD_OUT)}")
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.1, 0.05])
     ap.add_argument("--repeats", type=int, default=3, help="VTK seeds per split; trivsel timing calls (default 3)")
     ap.add_argument("--methods", nargs="+", default=list(METHODS), choices=METHODS)
