@@ -71,8 +71,8 @@ def test_every_stage_of_a_run_is_a_valid_mesh_with_exact_residuals():
 
 @settings(deadline=None, max_examples=25)
 @given(st.tuples(st.integers(2, 5), st.integers(2, 5), st.integers(2, 5)), st.integers(0, 2**31),
-       st.sampled_from(["normal", "integers", "flat"]), st.floats(0.0, 0.9))
-def test_any_grid_and_values_give_a_valid_mesh(shape, seed, kind, keep):
+       st.sampled_from(["normal", "integers", "flat"]), st.floats(0.0, 0.9), st.sampled_from(["sse", "max"]))
+def test_any_grid_and_values_give_a_valid_mesh(shape, seed, kind, keep, key):
     rng = np.random.default_rng(seed)
     if kind == "normal":
         a = rng.normal(size=shape)
@@ -81,7 +81,7 @@ def test_any_grid_and_values_give_a_valid_mesh(shape, seed, kind, keep):
     else:
         a = np.zeros(shape)
     data = grid_from_array(a)
-    dec = Decimation(data.ijk, data.shape, data.values)
+    dec = Decimation(data.ijk, data.shape, data.values, key=key)
     dec.run(max(8, int(keep * data.n_points)))
     T = dec.tetrahedra()
     check_tetrahedra(data.shape, T)
@@ -141,6 +141,20 @@ def test_tolerances_stop_at_the_last_collapse_within_them():
     s = r.snapshots[-1]
     assert np.abs(s.residuals).max() <= 0.2 and s.n_selected < data.n_points // 2
     check_tetrahedra(data.shape, s.tets)
+
+
+def test_the_max_criterion_aims_at_e_inf():
+    """criterion="max" takes the collapse that leaves the smallest largest residual first: on a
+    noisy volume its E_inf is lower than the squared-error order's, its E_RMS higher."""
+    rng = np.random.default_rng(5)
+    i, j, k = np.meshgrid(*(np.arange(n) for n in (12, 11, 10)), indexing="ij")
+    data = grid_from_array(np.sin(i / 3.0) * np.cos(j / 4.0) + 0.2 * k + rng.normal(0, 0.05, i.shape))
+    s_sse = trivsel.reduce(data, fractions=[0.1], method="decimate").snapshots[-1]
+    s_max = trivsel.reduce(data, fractions=[0.1], method="decimate", criterion="max").snapshots[-1]
+    check_tetrahedra(data.shape, s_max.tets)
+    assert s_max.errors["E_inf"] < s_sse.errors["E_inf"] and s_max.errors["E_rms"] > s_sse.errors["E_rms"]
+    with pytest.raises(trivsel.InputError, match="'rms'"):
+        trivsel.reduce(data, fractions=[0.1], method="decimate", criterion="rms")
 
 
 def test_interior_candidates_keep_every_box_point():

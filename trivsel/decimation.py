@@ -117,6 +117,7 @@ class State(NamedTuple):
     hv: np.ndarray
     hpos: np.ndarray
     hkey: np.ndarray
+    hsse: np.ndarray
     htgt: np.ndarray
     mark: np.ndarray
     deg: np.ndarray
@@ -131,7 +132,7 @@ class State(NamedTuple):
     ctr: np.ndarray
 
 
-C_NV, C_NREM, C_HN = 0, 1, 2
+C_NV, C_NREM, C_HN, C_MAXKEY = 0, 1, 2, 3
 
 # ----------------------------------------------------------------------------- geometry
 
@@ -274,10 +275,12 @@ def _allowed(S, v, w):
 
 @njit(cache=True, _nrt=False)
 def _cost(S, v, w, sc, n, G, tol_inf, old, bound):
-    """``(cost, shared)``: the change of the squared-residual sum if v moves onto w (v's
-    corners ``sc[:n]``, their planes ``G``), or inf if the collapse is invalid (a tet
-    would not keep a positive volume) or takes a residual above ``tol_inf`` (negative:
-    no limit); and the number of v's tets that contain w."""
+    """``(key, delta, shared)`` if v moves onto w (v's corners ``sc[:n]``, their planes
+    ``G``): ``delta`` the change of the squared-residual sum, ``key`` that change or, with
+    the max criterion, the largest |residual| of the points that move (v and its buckets'
+    points); the key is inf if the collapse is invalid (a tet would not keep a positive
+    volume), takes a residual above ``tol_inf`` (negative: no limit) or cannot beat
+    ``bound``.  ``shared``: the number of v's tets that contain w."""
     T, P, f = S.T, S.P, S.f
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
@@ -287,41 +290,46 @@ def _cost(S, v, w, sc, n, G, tol_inf, old, bound):
             shared += 1
             continue
         if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
-            return INF, shared
+            return INF, INF, shared
     if shared == 0:
-        return INF, shared
+        return INF, INF, shared
+    use_max = S.ctr[C_MAXKEY] != 0
     t, val = _locate_moved(S, sc, n, v, w, v, -1)
     if t < 0:
-        return INF, shared
+        return INF, INF, shared
     r = f[v] - val
     if 0.0 <= tol_inf < abs(r):
-        return INF, shared
+        return INF, INF, shared
     new = r * r
+    mx = abs(r)
     for i in range(n):
         t0 = sc[i] >> 2
         p = S.phead[t0]
         while p >= 0:
-            if new - old > bound:  # the rest only adds: no better than the best so far
-                return INF, shared
+            # the rest only adds: no better than the best so far
+            if (mx if use_max else new - old) > bound:
+                return INF, INF, shared
             t, val = _locate_moved(S, sc, n, v, w, p, t0)
             if t < 0:
-                return INF, shared
+                return INF, INF, shared
             r = f[p] - val
             if 0.0 <= tol_inf < abs(r):
-                return INF, shared
+                return INF, INF, shared
             new += r * r
+            mx = max(mx, abs(r))
             p = S.pnext[p]
-    return new - old, shared
+    return (mx if use_max else new - old), new - old, shared
 
 
 @njit(cache=True, _nrt=False)
 def _best(S, v, sc, G, mark, tol_inf):
-    """v's cheapest valid collapse ``(cost, w, tets of w after)`` over its neighbours w
-    (ties: fewer tets around w, then the smaller w); ``(inf, -1, 0)`` if none."""
+    """v's cheapest valid collapse ``(key, w, tets of w after, change of the squared-residual
+    sum)`` over its neighbours w (ties: fewer tets around w, then the smaller w);
+    ``(inf, -1, 0, inf)`` if none."""
     n = _star(S, v, sc)
-    best, bw, be = INF, -1, 0
+    best, bw, be, bd = INF, -1, 0, INF
     if n < 0:
-        return best, bw, be
+        return best, bw, be, bd
     _planes(S, sc, n, G)
     # the squared residuals that the collapse replaces (v's own is 0)
     old = 0.0
@@ -344,13 +352,13 @@ def _best(S, v, sc, G, mark, tol_inf):
             mark[w] = stamp
             if not S.isv[w] or not _allowed(S, v, w):
                 continue
-            c, shared = _cost(S, v, w, sc, n, G, tol_inf, old, best)
+            c, delta, shared = _cost(S, v, w, sc, n, G, tol_inf, old, best)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
             if c < best or (c == best and (e < be or (e == be and w < bw))):
-                best, bw, be = c, w, e
-    return best, bw, be
+                best, bw, be, bd = c, w, e, delta
+    return best, bw, be, bd
 
 
 @njit(cache=True, _nrt=False)
@@ -442,7 +450,7 @@ def _sift_down(S, i):
 
 
 @njit(cache=True, _nrt=False)
-def _queue(S, v, key, w, d):
+def _queue(S, v, key, w, d, delta):
     """Set v's cheapest collapse (onto w, leaving w with d tets); an inf key takes v out
     of the queue."""
     i = S.hpos[v]
@@ -458,6 +466,7 @@ def _queue(S, v, key, w, d):
                 _sift_down(S, S.hpos[x])
         return
     S.hkey[v] = key
+    S.hsse[v] = delta
     S.htgt[v] = w
     S.hdeg[v] = d
     if i < 0:
@@ -496,7 +505,7 @@ def _run(S, stop_count, sse_max, tol_inf):
             return 1
         v = S.hv[0]
         w = S.htgt[v]
-        if S.acc[0] + S.hkey[v] > sse_max:
+        if S.acc[0] + S.hsse[v] > sse_max:
             return 2
         n = _star(S, v, sc)
         # the vertices whose tets change: their collapses are evaluated again
@@ -513,7 +522,7 @@ def _run(S, stop_count, sse_max, tol_inf):
                     aff[na] = u
                     na += 1
         _collapse(S, v, w, sc, n)
-        _queue(S, v, INF, -1, 0)
+        _queue(S, v, INF, -1, 0, INF)
         S.removed[S.ctr[C_NREM]] = v
         S.ctr[C_NREM] += 1
         S.ctr[C_NV] -= 1
@@ -525,8 +534,8 @@ def _run(S, stop_count, sse_max, tol_inf):
 def _evaluate(S, verts, m, tol_inf):
     """Queue the cheapest collapses of ``verts[:m]``."""
     for i in range(m):
-        key, x, d = _best(S, verts[i], S.sc, S.G, S.mark, tol_inf)
-        _queue(S, verts[i], key, x, d)
+        key, x, d, delta = _best(S, verts[i], S.sc, S.G, S.mark, tol_inf)
+        _queue(S, verts[i], key, x, d, delta)
 
 
 @njit(cache=True)
@@ -559,10 +568,12 @@ class Decimation:
     ``run(count, sse_max)`` collapses down to ``count`` vertices (or to the tolerance);
     between calls the state is kept, so one run passes several counts.  ``lock`` is
     ``"box"`` (corners fixed; edge and face points move along their edge or face) or
-    ``"all"`` (every box point fixed: only interior points are removed).
+    ``"all"`` (every box point fixed: only interior points are removed).  ``key`` orders
+    the collapses: ``"sse"`` by the change of the squared-residual sum (aims at E_RMS),
+    ``"max"`` by the largest |residual| of the points that move (aims at E_inf).
     """
 
-    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box"):
+    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse"):
         P = np.ascontiguousarray(ijk, np.int64)
         N = P.shape[0]
         T = grid_tetrahedra(shape)
@@ -579,12 +590,12 @@ class Decimation:
                        cprev=np.full(4 * M, -1, np.int64), phead=np.full(M, -1, np.int64),
                        pnext=np.full(N, -1, np.int64), ptet=np.full(N, -1, np.int64), res=np.zeros(N),
                        isv=np.ones(N, np.bool_), lock=lk, hv=np.zeros(N, np.int64), hpos=np.full(N, -1, np.int64),
-                       hkey=np.full(N, INF), htgt=np.full(N, -1, np.int64), hdeg=np.zeros(N, np.int64),
+                       hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, np.int64), hdeg=np.zeros(N, np.int64),
                        deg=np.zeros(N, np.int64), mark=np.zeros(N, np.int64),
                        removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64),
                        G=np.zeros((STAR_CAPACITY, 4), np.int64), stamp=np.zeros(1, np.int64),
                        pbuf=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                       ctr=np.array([N, 0, 0], np.int64))
+                       ctr=np.array([N, 0, 0, key == "max"], np.int64))
         _init(self.S, self.tol_inf)
 
     @property
@@ -621,8 +632,8 @@ class Decimation:
 CHUNK_SECONDS = 0.25
 
 
-def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates="all", values=("data",),
-                       interior=None, check=None, progress=None, t_start=None):
+def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates="all", key="sse",
+                       values=("data",), interior=None, check=None, progress=None, t_start=None):
     """The whole run of ``method="decimate"`` for :func:`trivsel.reduce`.
 
     Collapses from the full grid down through ``targets`` (counts, visited in
@@ -642,7 +653,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     N = data.n_points
     interior = data.interior_mask() if interior is None else interior
     dec = Decimation(data.ijk, data.shape, data.values, tol_inf=tol_inf,
-                     lock="all" if candidates == "interior" else "box")
+                     lock="all" if candidates == "interior" else "box", key=key)
     sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)
     shots, step, stopped = [], 4096, False
     for target in sorted(set(int(t) for t in targets), reverse=True):

@@ -73,7 +73,8 @@ class Options:
     criterion: str | None = _option(
         None, "swap criterion: sum of the tetrahedral RMS errors (eq. 14) 'rms', of the max errors (eq. 15) "
         "'max', or the squared residuals of the configuration's points, each once 'sse' (the exact change of "
-        "the global L2 error)",
+        "the global L2 error); for 'decimate' the order of the collapses: 'sse' (the change of the squared "
+        "error, aims at E_RMS) or 'max' (the largest residual left, aims at E_inf)",
         kind="choice", choices=("rms", "max", "sse"), paper="section 4, eqs. 14-15", tag="crit")
     candidates: str = _option(
         "all", "selectable points: 'all' non-fixed points (face and edge points included; Table 1 needs them) "

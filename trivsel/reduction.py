@@ -295,6 +295,7 @@ def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, 
     log.info("decimating %d points down to %d", N, targets[0])
     snaps, selected, stats, t_errors = reduce_by_collapse(
         data, targets, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], candidates=opts.candidates,
+        key="max" if opts.criterion == "max" else "sse",
         values=opts.values, interior=interior, check=check, progress=scaling.progress_out(progress),
         t_start=t_start)
     req = {count_for_fraction(f, N): f for f in stop["fractions"]}

@@ -5,8 +5,9 @@ half-edge collapse onto a neighbouring point raises the sum of squared residuals
 (the numerator of E_RMS, eq. 19) least, until the count, fraction or tolerance is
 reached (:mod:`trivsel.decimation`).  The vertices stay data points: the result is a
 true selection, with the data values at its vertices (or fitted ones with
-``values="fit"``).  Aims at E_RMS; grid data only.  The options of curvature,
-ranking and swapping do not apply.
+``values="fit"``).  Aims at E_RMS, or with ``criterion="max"`` at E_inf (the
+collapse that leaves the smallest largest residual first); grid data only.  The
+options of curvature, ranking and swapping do not apply.
 """
 
 from __future__ import annotations
@@ -27,7 +28,12 @@ def needs_curvature(options):
 
 
 def check(data, options):
-    """Grid data only: the collapses are tested on integer grid coordinates."""
+    """Grid data only (the collapses are tested on integer grid coordinates); the criterion
+    orders the collapses: ``sse`` (the default) by the change of the squared error, ``max``
+    by the largest residual of the points that move."""
+    if options.criterion == "rms":
+        raise InputError("method 'decimate' orders collapses by criterion 'sse' (E_RMS) or 'max' (E_inf), "
+                         "got 'rms'")
     if not data.is_grid:
         raise InputError("method 'decimate' needs grid data (a .vti, NIfTI, NRRD or array volume); "
                          "scattered points: use 'greedy' or 'paper'")
