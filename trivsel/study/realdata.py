@@ -986,8 +986,10 @@ def curves_figure(df, out_png, volume=None, dpi=110):
     ax.set_xscale("log")
     ax.set_yscale("log")
     plain = FuncFormatter(lambda v, _: f"{v:g}")  # 400 rather than 4 x 10^2
+    # label the 1-2-5 ticks only, so that neighbouring labels do not run into each other
+    sparse = FuncFormatter(lambda v, _: f"{v:g}" if f"{v:g}"[0] in "125" else "")
     ax.xaxis.set_major_formatter(plain)
-    ax.xaxis.set_minor_formatter(plain)
+    ax.xaxis.set_minor_formatter(sparse)
     ax.yaxis.set_major_formatter(plain)
     lo, hi = ax.get_ylim()
     ax.yaxis.set_minor_formatter(plain if hi < 10 * lo else NullFormatter())  # minor labels within a decade
