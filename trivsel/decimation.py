@@ -541,7 +541,7 @@ def _evaluate(S, verts, m, tol_inf):
 @njit(cache=True)
 def _weights(S):
     """For every point, the 4 vertices and barycentric weights of the tet that holds it
-    (a vertex: itself with weight 1), and its residual."""
+    (a vertex: itself with weight 1)."""
     N = S.P.shape[0]
     verts = np.empty((N, 4), np.int64)
     w = np.zeros((N, 4))
@@ -638,11 +638,12 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
 
     Collapses from the full grid down through ``targets`` (counts, visited in
     descending order), or until E_RMS would exceed ``tol_rms`` or no collapse keeps
-    every residual within ``tol_inf``.  Returns ``(snapshots, selected, stats)``:
-    the snapshots ascending by count (:class:`trivsel.reduction.Snapshot`), the
-    points in the order in which a selection grows (the final vertices in index
+    every residual within ``tol_inf``.  Returns ``(snapshots, selected, stats,
+    seconds)``: the snapshots ascending by count (:class:`trivsel.reduction.Snapshot`),
+    the points in the order in which a selection grows (the final vertices in index
     order, then the removed points from last to first: ``selected[:k]`` is the
-    selection of a snapshot with ``k`` points) and the counters.
+    selection of a snapshot with ``k`` points), the counters, and the seconds spent on
+    the snapshots' errors and fits.
     """
     import time
 
@@ -655,7 +656,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     dec = Decimation(data.ijk, data.shape, data.values, tol_inf=tol_inf,
                      lock="all" if candidates == "interior" else "box", key=key)
     sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)
-    shots, step, stopped = [], 4096, False
+    shots, t_errors, step, stopped = [], 0.0, 4096, False
     for target in sorted(set(int(t) for t in targets), reverse=True):
         while not stopped and dec.n_vertices > target:
             t0 = time.perf_counter()
@@ -673,26 +674,22 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
         r = dec.residuals()
         fit = None
         if "fit" in values:
-            from .fitting import fit_vertex_values
+            from .fitting import fit_on_mesh
 
-            verts, w = dec.point_weights()
-            vtx = dec.vertices()
-            fv, fr = fit_vertex_values(verts, w, data.values, vtx)
-            fit = {"vertices": vtx, "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
+            fit = fit_on_mesh(dec, data.values, interior)
         m = dec.n_vertices
-        shots.append((Snapshot(fraction=m / N, n_selected=m, selected=None, tets=dec.tetrahedra(), residuals=r,
-                               errors=error_norms(r, interior), seconds=time.perf_counter() - t_start, fit=fit),
-                      time.perf_counter() - te))
+        shots.append(Snapshot(fraction=m / N, n_selected=m, selected=None, tets=dec.tetrahedra(), residuals=r,
+                              errors=error_norms(r, interior), seconds=time.perf_counter() - t_start, fit=fit))
+        t_errors += time.perf_counter() - te
         if stopped:
             break
     removed = dec.removed()
     selected = np.concatenate([dec.vertices(), removed[::-1]])
-    snaps = []
-    for s, _ in reversed(shots):
+    snaps = shots[::-1]
+    for s in snaps:
         s.selected = selected[: s.n_selected].copy()
-        snaps.append(s)
     stats = {"collapses": int(len(removed)), "tets": int(dec.S.alive.sum())}
-    return snaps, selected, stats, sum(t for _, t in shots)
+    return snaps, selected, stats, t_errors
 
 
 def compile_kernels():

@@ -19,7 +19,7 @@ import numpy as np
 import scipy.sparse as sp
 from scipy.sparse.linalg import spsolve
 
-__all__ = ["fit_vertex_values"]
+__all__ = ["fit_vertex_values", "fit_on_mesh"]
 
 
 def fit_vertex_values(verts, weights, values, vertices):
@@ -59,3 +59,16 @@ def fit_vertex_values(verts, weights, values, vertices):
     fitted = spsolve(AtA, A.T @ f)
     residuals = f - A @ fitted
     return fitted, residuals
+
+
+def fit_on_mesh(mesh, values, interior):
+    """A snapshot's ``fit``: least-squares values on ``mesh`` (anything with
+    ``point_weights()`` and ``vertices()``: :class:`trivsel.mesh.TetMesh`,
+    :class:`trivsel.decimation.Decimation`), as the dict :class:`trivsel.reduction.Snapshot`
+    holds: ``vertices``, ``values``, ``residuals`` and their ``errors`` (eqs. 19-20)."""
+    from .norms import error_norms
+
+    verts, w = mesh.point_weights()
+    vtx = mesh.vertices()
+    fv, fr = fit_vertex_values(verts, w, values, vtx)
+    return {"vertices": vtx, "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}

@@ -224,7 +224,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     if boundary is not None and not len(cand):
         raise InputError(f"a prescribed boundary needs an interior point; the grid {data.shape} has none")
     n_fixed = len(fixed) + (boundary is not None)
-    targets = sorted({count_for_fraction(f, N) for f in fractions} | ({int(count)} if count is not None else set()))
+    targets = _target_counts(fractions, count, N)
     n_max = len(fixed) + len(cand)
     for m in targets:
         if m < n_fixed:
@@ -273,6 +273,20 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
                            options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats)
 
 
+def _target_counts(fractions, count, N):
+    """The point counts to stop at, ascending: each fraction's (rounded half up) and ``count``."""
+    return sorted({count_for_fraction(f, N) for f in fractions} | ({int(count)} if count is not None else set()))
+
+
+def _requested_fractions(snapshots, fractions, N):
+    """Label the snapshots that hit a requested fraction's count with that fraction as
+    requested (not m / N)."""
+    req = {count_for_fraction(f, N): f for f in fractions}
+    for s in snapshots:
+        if s.n_selected in req:
+            s.fraction = req[s.n_selected]
+
+
 def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, progress, t_start):
     """``method="decimate"``: the run goes down from the full grid (:mod:`trivsel.decimation`)."""
     from .decimation import reduce_by_collapse
@@ -284,8 +298,7 @@ def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, 
     check_memory(DECIMATION_BYTES_PER_POINT * float(N), f"decimating {N} points")
     interior = data.interior_mask()
     n_fixed = int(np.sum(~interior)) if opts.candidates == "interior" else 8
-    targets = sorted({count_for_fraction(f, N) for f in stop["fractions"]}
-                     | ({int(stop["count"])} if stop["count"] is not None else set()))
+    targets = _target_counts(stop["fractions"], stop["count"], N)
     for m in targets:
         if m < n_fixed:
             raise InputError(f"target of {m} points is fewer than the {n_fixed} points that decimation keeps "
@@ -298,10 +311,7 @@ def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, 
         key="max" if opts.criterion == "max" else "sse",
         values=opts.values, interior=interior, check=check, progress=scaling.progress_out(progress),
         t_start=t_start)
-    req = {count_for_fraction(f, N): f for f in stop["fractions"]}
-    for s in snaps:
-        if s.n_selected in req:
-            s.fraction = req[s.n_selected]
+    _requested_fractions(snaps, stop["fractions"], N)
     t_total = time.perf_counter() - t_start
     timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
     fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
@@ -543,11 +553,7 @@ class _Run:
             self.snapshots.append(self._snapshot(tm, n_fixed + pos, inserted))
             if reached_tol:
                 break
-        # fractions as requested (not m / N) for the rows that hit their target exactly
-        req = {count_for_fraction(f, N): f for f in self.stop["fractions"]}
-        for s in self.snapshots:
-            if s.n_selected in req:
-                s.fraction = req[s.n_selected]
+        _requested_fractions(self.snapshots, self.stop["fractions"], N)
         self.inserted = inserted
         self.stats = {"flips": tm.flips, "cases": tm.cases, "evaluations": tm.evaluations,
                       "tets": int(len(tm.live_ids())), "round_cap_hits": tm.round_cap_hits}
@@ -564,12 +570,9 @@ class _Run:
         r, _ = snap_mesh.residuals()
         fit = None
         if "fit" in self.opts.values:
-            from .fitting import fit_vertex_values
+            from .fitting import fit_on_mesh
 
-            verts, w = snap_mesh.point_weights()
-            vtx = snap_mesh.vertices()
-            fv, fr = fit_vertex_values(verts, w, data.values, vtx)
-            fit = {"vertices": vtx, "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
+            fit = fit_on_mesh(snap_mesh, data.values, interior)
         snap = Snapshot(fraction=m / data.n_points, n_selected=m,
                         selected=np.concatenate([self.fixed, np.asarray(inserted, np.int64)]),
                         tets=snap_mesh.tetrahedra(), residuals=r, errors=error_norms(r, interior),
