@@ -97,8 +97,11 @@ class State(NamedTuple):
         heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
                       queued); htgt[v] the target of v's cheapest collapse
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size]
-        scratch       sc a star's corners, G their far faces' planes, mark stamps of
-                      points (stamp[0] the last)
+        scratch       sc a star's corners, Q their tets' vertices, G their far faces'
+                      planes, kw whether each holds the target being tried, Dn
+                      their volumes (x 6) once they have it; pbuf the
+                      points of the star's buckets, phome the star index of each;
+                      mark stamps of points (stamp[0] the last)
     """
 
     P: np.ndarray
@@ -124,9 +127,13 @@ class State(NamedTuple):
     hdeg: np.ndarray
     removed: np.ndarray
     sc: np.ndarray
+    Q: np.ndarray
     G: np.ndarray
+    Dn: np.ndarray
+    kw: np.ndarray
     stamp: np.ndarray
     pbuf: np.ndarray
+    phome: np.ndarray
     aff: np.ndarray
     acc: np.ndarray
     ctr: np.ndarray
@@ -176,25 +183,70 @@ def _moved(T, t, s, w, j):
 
 
 @njit(cache=True, _nrt=False)
-def _planes(S, sc, n, G):
-    """For each of v's corners ``sc[i]`` (slot s of tet t), the orientation of t as an affine
-    function of the point x in slot s: ``orient = G[i, :3] . x + G[i, 3]``, so that moving v
-    onto any w is tested with one dot product per tet.
+def _planes(P, Q, sc, n, G):
+    """For each of v's corners ``sc[i]`` (slot s of tet ``Q[i]``), the orientation of that tet
+    as an affine function of the point x in slot s: ``orient = G[i, :3] . x + G[i, 3]``, so
+    that moving v onto any w is tested with one dot product per tet.
 
     With a, b, c the other three vertices in order, ``orient(x, a, b, c) = -N . (x - a)``
     for ``N = (b - a) x (c - a)``, and moving x from slot 0 to slot s is s transpositions."""
-    P, T = S.P, S.T
     for i in range(n):
-        t, s = sc[i] >> 2, sc[i] & 3
-        a = T[t, 1] if s == 0 else T[t, 0]
-        b = T[t, 2] if s <= 1 else T[t, 1]
-        c = T[t, 3] if s <= 2 else T[t, 2]
+        s = sc[i] & 3
+        a = Q[i, 1] if s == 0 else Q[i, 0]
+        b = Q[i, 2] if s <= 1 else Q[i, 1]
+        c = Q[i, 3] if s <= 2 else Q[i, 2]
         ux, uy, uz = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
         vx, vy, vz = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
         nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
         sign = -1 if s % 2 == 0 else 1
         G[i, 0], G[i, 1], G[i, 2] = sign * nx, sign * ny, sign * nz
         G[i, 3] = -sign * (nx * P[a, 0] + ny * P[a, 1] + nz * P[a, 2])
+
+
+@njit(cache=True, _nrt=False)
+def _gather(S, sc, n, Q):
+    """Copy the star's tets (corners ``sc[:n]``) into ``Q`` and its buckets' points into
+    ``S.pbuf`` (``S.phome``: the star index of each point's tet), in star order; returns the
+    number of points and the sum of their squared residuals."""
+    T, phead, pnext, res, pbuf, phome = S.T, S.phead, S.pnext, S.res, S.pbuf, S.phome
+    m = 0
+    old = 0.0
+    for i in range(n):
+        t = sc[i] >> 2
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = T[t, 0], T[t, 1], T[t, 2], T[t, 3]
+        p = phead[t]
+        while p >= 0:
+            old += res[p] * res[p]
+            pbuf[m] = p
+            phome[m] = i
+            m += 1
+            p = pnext[p]
+    return m, old
+
+
+@njit(cache=True, _nrt=False)
+def _value_moved(P, f, Q, G, Dn, sc, i, w, p):
+    """``_value_in`` for star tet ``Q[i]`` with v's slot holding w."""
+    s = sc[i] & 3
+    return _value_in(P, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
+                     w if s == 3 else Q[i, 3], p)
+
+
+@njit(cache=True, _nrt=False)
+def _locate_star(P, f, Q, G, Dn, sc, kw, n, w, p, hint):
+    """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
+    w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
+    if hint >= 0 and not kw[hint]:
+        ok, val = _value_moved(P, f, Q, G, Dn, sc, hint, w, p)
+        if ok:
+            return hint, val
+    for i in range(n):
+        if i == hint or kw[i]:
+            continue
+        ok, val = _value_moved(P, f, Q, G, Dn, sc, i, w, p)
+        if ok:
+            return i, val
+    return -1, 0.0
 
 
 @njit(cache=True, _nrt=False)
@@ -274,50 +326,51 @@ def _allowed(S, v, w):
 
 
 @njit(cache=True, _nrt=False)
-def _cost(S, v, w, sc, n, G, tol_inf, old, bound):
-    """``(key, delta, shared)`` if v moves onto w (v's corners ``sc[:n]``, their planes
-    ``G``): ``delta`` the change of the squared-residual sum, ``key`` that change or, with
-    the max criterion, the largest |residual| of the points that move (v and its buckets'
-    points); the key is inf if the collapse is invalid (a tet would not keep a positive
-    volume), takes a residual above ``tol_inf`` (negative: no limit) or cannot beat
-    ``bound``.  ``shared``: the number of v's tets that contain w."""
-    T, P, f = S.T, S.P, S.f
+def _cost(S, v, w, sc, Q, G, Dn, kw, n, m, tol_inf, old, bound, use_max):
+    """``(key, delta, shared)`` if v moves onto w (v's star gathered by ``_gather``: tets
+    ``Q[:n]``, their planes ``G``, bucket points ``S.pbuf[:m]``): ``delta`` the change of the
+    squared-residual sum, ``key`` that change or, with the max criterion, the largest
+    |residual| of the points that move (v and its buckets' points); the key is inf if the
+    collapse is invalid (a tet would not keep a positive volume), takes a residual above
+    ``tol_inf`` (negative: no limit) or cannot beat ``bound``.  ``shared``: the number of
+    v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w) and ``Dn`` (six times
+    the volume of each other tet once it has w)."""
+    P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
     for i in range(n):
-        t = sc[i] >> 2
-        if _has(T, t, w):
+        h = Q[i, 0] == w or Q[i, 1] == w or Q[i, 2] == w or Q[i, 3] == w
+        kw[i] = h
+        if h:
             shared += 1
             continue
-        if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
+        d = G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3]
+        if d <= 0:
             return INF, INF, shared
+        Dn[i] = d
     if shared == 0:
         return INF, INF, shared
-    use_max = S.ctr[C_MAXKEY] != 0
-    t, val = _locate_moved(S, sc, n, v, w, v, -1)
-    if t < 0:
+    i, val = _locate_star(P, f, Q, G, Dn, sc, kw, n, w, v, -1)
+    if i < 0:
         return INF, INF, shared
     r = f[v] - val
     if 0.0 <= tol_inf < abs(r):
         return INF, INF, shared
     new = r * r
     mx = abs(r)
-    for i in range(n):
-        t0 = sc[i] >> 2
-        p = S.phead[t0]
-        while p >= 0:
-            # the rest only adds: no better than the best so far
-            if (mx if use_max else new - old) > bound:
-                return INF, INF, shared
-            t, val = _locate_moved(S, sc, n, v, w, p, t0)
-            if t < 0:
-                return INF, INF, shared
-            r = f[p] - val
-            if 0.0 <= tol_inf < abs(r):
-                return INF, INF, shared
-            new += r * r
-            mx = max(mx, abs(r))
-            p = S.pnext[p]
+    for k in range(m):
+        # the rest only adds: no better than the best so far
+        if (mx if use_max else new - old) > bound:
+            return INF, INF, shared
+        p = pbuf[k]
+        i, val = _locate_star(P, f, Q, G, Dn, sc, kw, n, w, p, phome[k])
+        if i < 0:
+            return INF, INF, shared
+        r = f[p] - val
+        if 0.0 <= tol_inf < abs(r):
+            return INF, INF, shared
+        new += r * r
+        mx = max(mx, abs(r))
     return (mx if use_max else new - old), new - old, shared
 
 
@@ -330,14 +383,11 @@ def _best(S, v, sc, G, mark, tol_inf):
     best, bw, be, bd = INF, -1, 0, INF
     if n < 0:
         return best, bw, be, bd
-    _planes(S, sc, n, G)
+    Q, kw = S.Q, S.kw
     # the squared residuals that the collapse replaces (v's own is 0)
-    old = 0.0
-    for i in range(n):
-        p = S.phead[sc[i] >> 2]
-        while p >= 0:
-            old += S.res[p] * S.res[p]
-            p = S.pnext[p]
+    m, old = _gather(S, sc, n, Q)
+    _planes(S.P, Q, sc, n, G)
+    use_max = S.ctr[C_MAXKEY] != 0
     S.stamp[0] += 1
     stamp = S.stamp[0]
     mark[v] = stamp
@@ -346,13 +396,13 @@ def _best(S, v, sc, G, mark, tol_inf):
     first = S.htgt[v]
     for i in range(-1, n):
         for j in range(1 if i < 0 else 4):
-            w = first if i < 0 else S.T[sc[i] >> 2, j]
+            w = first if i < 0 else Q[i, j]
             if w < 0 or mark[w] == stamp:
                 continue
             mark[w] = stamp
             if not S.isv[w] or not _allowed(S, v, w):
                 continue
-            c, delta, shared = _cost(S, v, w, sc, n, G, tol_inf, old, best)
+            c, delta, shared = _cost(S, v, w, sc, Q, G, S.Dn, kw, n, m, tol_inf, old, best, use_max)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
@@ -593,8 +643,10 @@ class Decimation:
                        hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, np.int64), hdeg=np.zeros(N, np.int64),
                        deg=np.zeros(N, np.int64), mark=np.zeros(N, np.int64),
                        removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64),
-                       G=np.zeros((STAR_CAPACITY, 4), np.int64), stamp=np.zeros(1, np.int64),
-                       pbuf=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
+                       Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
+                       Dn=np.zeros(STAR_CAPACITY, np.int64),
+                       kw=np.zeros(STAR_CAPACITY, np.bool_), stamp=np.zeros(1, np.int64),
+                       pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                        ctr=np.array([N, 0, 0, key == "max"], np.int64))
         _init(self.S, self.tol_inf)
 
