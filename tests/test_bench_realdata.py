@@ -123,3 +123,27 @@ def test_real_volumes_load_and_measure():
     row = rd.measure(rd.central_crop(full, 9), 0.1, repeats=1,
                         scales=("raw",), methods=("greedy",), say=_quiet)
     assert row["vtk_refit_E_rms"] <= row["vtk_E_rms"] * (1 + 1e-9) and row["greedy_fit_over_refit"] > 0
+
+
+def _load_script(name):
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def test_decimate_hashes_tell_identical_runs_from_different_ones(tmp_path, monkeypatch, capsys):
+    hashes = _load_script("decimate_hashes")
+    one = hashes.run_hash("chirp", True, "sse", "box", None)
+    assert hashes.run_hash("chirp", True, "sse", "box", None) == one
+    assert hashes.run_hash("chirp", True, "max", "box", None) != one
+    assert hashes.run_hash("chirp", True, "sse", "all", None) != one
+    monkeypatch.setattr(hashes, "CASES", [("chirp", True, "sse", "box", None), ("steps", True, "max", "box", None)])
+    path = tmp_path / "h.json"
+    assert hashes.main(["save", str(path)]) == 0
+    assert hashes.main(["check", str(path)]) == 0
+    assert "2 of 2 runs identical" in capsys.readouterr().out
+    saved = path.read_text().replace(one, "0" * len(one))
+    path.write_text(saved)
+    assert hashes.main(["check", str(path)]) == 1
+    assert "differ: chirp-True-sse-box-None" in capsys.readouterr().out
