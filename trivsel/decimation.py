@@ -98,9 +98,8 @@ class State(NamedTuple):
                       queued); htgt[v] the target of v's cheapest collapse
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size]
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
-                      planes, kw whether each holds the target being tried, Dn
-                      their volumes (x 6) once they have it; pbuf the
-                      points of the star's buckets, phome the star index of each;
+                      planes, kw whether each holds the target being tried; pbuf
+                      the points of the star's buckets, phome the star index of each;
                       mark stamps of points (stamp[0] the last)
     """
 
@@ -129,7 +128,6 @@ class State(NamedTuple):
     sc: np.ndarray
     Q: np.ndarray
     G: np.ndarray
-    Dn: np.ndarray
     kw: np.ndarray
     stamp: np.ndarray
     pbuf: np.ndarray
@@ -225,7 +223,7 @@ def _gather(S, sc, n, Q):
 
 
 @njit(cache=True, _nrt=False)
-def _value_moved(P, f, Q, G, Dn, sc, i, w, p):
+def _value_moved(P, f, Q, sc, i, w, p):
     """``_value_in`` for star tet ``Q[i]`` with v's slot holding w."""
     s = sc[i] & 3
     return _value_in(P, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
@@ -233,17 +231,17 @@ def _value_moved(P, f, Q, G, Dn, sc, i, w, p):
 
 
 @njit(cache=True, _nrt=False)
-def _locate_star(P, f, Q, G, Dn, sc, kw, n, w, p, hint):
+def _locate_star(P, f, Q, sc, kw, n, w, p, hint):
     """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
     w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
     if hint >= 0 and not kw[hint]:
-        ok, val = _value_moved(P, f, Q, G, Dn, sc, hint, w, p)
+        ok, val = _value_moved(P, f, Q, sc, hint, w, p)
         if ok:
             return hint, val
     for i in range(n):
         if i == hint or kw[i]:
             continue
-        ok, val = _value_moved(P, f, Q, G, Dn, sc, i, w, p)
+        ok, val = _value_moved(P, f, Q, sc, i, w, p)
         if ok:
             return i, val
     return -1, 0.0
@@ -326,15 +324,14 @@ def _allowed(S, v, w):
 
 
 @njit(cache=True, _nrt=False)
-def _cost(S, v, w, sc, Q, G, Dn, kw, n, m, tol_inf, old, bound, use_max):
+def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
     """``(key, delta, shared)`` if v moves onto w (v's star gathered by ``_gather``: tets
     ``Q[:n]``, their planes ``G``, bucket points ``S.pbuf[:m]``): ``delta`` the change of the
     squared-residual sum, ``key`` that change or, with the max criterion, the largest
     |residual| of the points that move (v and its buckets' points); the key is inf if the
     collapse is invalid (a tet would not keep a positive volume), takes a residual above
     ``tol_inf`` (negative: no limit) or cannot beat ``bound``.  ``shared``: the number of
-    v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w) and ``Dn`` (six times
-    the volume of each other tet once it has w)."""
+    v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w)."""
     P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
@@ -344,13 +341,11 @@ def _cost(S, v, w, sc, Q, G, Dn, kw, n, m, tol_inf, old, bound, use_max):
         if h:
             shared += 1
             continue
-        d = G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3]
-        if d <= 0:
+        if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
             return INF, INF, shared
-        Dn[i] = d
     if shared == 0:
         return INF, INF, shared
-    i, val = _locate_star(P, f, Q, G, Dn, sc, kw, n, w, v, -1)
+    i, val = _locate_star(P, f, Q, sc, kw, n, w, v, -1)
     if i < 0:
         return INF, INF, shared
     r = f[v] - val
@@ -363,7 +358,7 @@ def _cost(S, v, w, sc, Q, G, Dn, kw, n, m, tol_inf, old, bound, use_max):
         if (mx if use_max else new - old) > bound:
             return INF, INF, shared
         p = pbuf[k]
-        i, val = _locate_star(P, f, Q, G, Dn, sc, kw, n, w, p, phome[k])
+        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, phome[k])
         if i < 0:
             return INF, INF, shared
         r = f[p] - val
@@ -402,7 +397,7 @@ def _best(S, v, sc, G, mark, tol_inf):
             mark[w] = stamp
             if not S.isv[w] or not _allowed(S, v, w):
                 continue
-            c, delta, shared = _cost(S, v, w, sc, Q, G, S.Dn, kw, n, m, tol_inf, old, best, use_max)
+            c, delta, shared = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
@@ -644,7 +639,6 @@ class Decimation:
                        deg=np.zeros(N, np.int64), mark=np.zeros(N, np.int64),
                        removed=np.zeros(N, np.int64), sc=np.zeros(STAR_CAPACITY, np.int64),
                        Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
-                       Dn=np.zeros(STAR_CAPACITY, np.int64),
                        kw=np.zeros(STAR_CAPACITY, np.bool_), stamp=np.zeros(1, np.int64),
                        pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                        ctr=np.array([N, 0, 0, key == "max"], np.int64))
