@@ -13,10 +13,16 @@ import trivsel
 from trivsel.study import realdata as rd
 from trivsel.study.baselines import evaluate_mesh_at_points, vtk_quadric_decimation
 
-_PATH = Path(__file__).resolve().parents[1] / "benchmarks" / "bench_realdata.py"
-_spec = importlib.util.spec_from_file_location("bench_realdata", _PATH)
-bench = importlib.util.module_from_spec(_spec)
-_spec.loader.exec_module(bench)
+
+def _load_script(name):
+    """A script of benchmarks/ as a module."""
+    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py")
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+bench = _load_script("bench_realdata")
 
 HAVE_REAL = importlib.util.find_spec("nilearn") is not None and importlib.util.find_spec("dipy") is not None
 
@@ -123,13 +129,6 @@ def test_real_volumes_load_and_measure():
     row = rd.measure(rd.central_crop(full, 9), 0.1, repeats=1,
                         scales=("raw",), methods=("greedy",), say=_quiet)
     assert row["vtk_refit_E_rms"] <= row["vtk_E_rms"] * (1 + 1e-9) and row["greedy_fit_over_refit"] > 0
-
-
-def _load_script(name):
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
 
 
 def test_decimate_hashes_tell_identical_runs_from_different_ones(tmp_path, monkeypatch, capsys):

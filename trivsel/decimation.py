@@ -171,13 +171,8 @@ def _value_in(P, f, q0, q1, q2, q3, p):
 
 @njit(cache=True, _nrt=False)
 def _has(T, t, w):
+    """Whether row t of ``T`` (a tet's four vertices) holds vertex w."""
     return T[t, 0] == w or T[t, 1] == w or T[t, 2] == w or T[t, 3] == w
-
-
-@njit(cache=True, _nrt=False)
-def _moved(T, t, s, w, j):
-    """Vertex j of tet t once slot s holds w."""
-    return w if j == s else T[t, j]
 
 
 @njit(cache=True, _nrt=False)
@@ -244,24 +239,6 @@ def _locate_star(P, f, Q, sc, kw, n, w, p, hint):
         ok, val = _value_moved(P, f, Q, sc, i, w, p)
         if ok:
             return i, val
-    return -1, 0.0
-
-
-@njit(cache=True, _nrt=False)
-def _locate_moved(S, sc, n, v, w, p, hint):
-    """Where p lies once v has moved onto w: ``(tet, L)`` among v's tets (corners
-    ``sc[:n]``) that keep w, trying tet ``hint`` first; ``(-1, 0)`` if none holds p."""
-    T, P, f = S.T, S.P, S.f
-    for rnd in range(2):
-        for i in range(n):
-            t = sc[i] >> 2
-            if (rnd == 0) != (t == hint) or _has(T, t, w):
-                continue
-            s = sc[i] & 3
-            ok, val = _value_in(P, f, _moved(T, t, s, w, 0), _moved(T, t, s, w, 1), _moved(T, t, s, w, 2),
-                                _moved(T, t, s, w, 3), p)
-            if ok:
-                return t, val
     return -1, 0.0
 
 
@@ -336,7 +313,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
     for i in range(n):
-        h = Q[i, 0] == w or Q[i, 1] == w or Q[i, 2] == w or Q[i, 3] == w
+        h = _has(Q, i, w)
         kw[i] = h
         if h:
             shared += 1
@@ -409,31 +386,25 @@ def _best(S, v, sc, G, mark, tol_inf):
 @njit(cache=True, _nrt=False)
 def _collapse(S, v, w, sc, n):
     """Move v onto w (v's corners ``sc[:n]``): drop the tets of edge vw, give w the others
-    and put the points of v's buckets (and v) into the tets that now hold them."""
-    T, f = S.T, S.f
-    m = 0
-    S.pbuf[m] = v
-    m += 1
+    and put v and the points of v's buckets into the tets that now hold them, located as
+    ``_cost`` located them."""
+    T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
+    m, _ = _gather(S, sc, n, Q)
     for i in range(n):
-        t = sc[i] >> 2
-        p = S.phead[t]
-        while p >= 0:
-            S.pbuf[m] = p
-            m += 1
-            p = S.pnext[p]
-        S.phead[t] = -1
-    # locate with the tets still as they were (``_locate_moved`` reads v's slot as w)
-    for i in range(m):
-        p = S.pbuf[i]
-        t, val = _locate_moved(S, sc, n, v, w, p, S.ptet[p] if p != v else -1)
-        S.ptet[p] = t  # t >= 0: the collapse was checked by _cost
+        kw[i] = _has(Q, i, w)
+    # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
+    for k in range(-1, m):
+        p = v if k < 0 else pbuf[k]
+        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
+        S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
         r = f[p] - val
-        S.acc[0] += r * r - S.res[p] * S.res[p]
-        S.res[p] = r
+        S.acc[0] += r * r - res[p] * res[p]
+        res[p] = r
     for i in range(n):
         c = sc[i]
         t = c >> 2
-        if _has(T, t, w):
+        S.phead[t] = -1
+        if kw[i]:
             S.alive[t] = False
             for j in range(4):
                 if T[t, j] != v:
@@ -444,8 +415,8 @@ def _collapse(S, v, w, sc, n):
     S.vhead[v] = -1
     S.deg[v] = 0
     S.isv[v] = False
-    for i in range(m):
-        p = S.pbuf[i]
+    for k in range(-1, m):
+        p = v if k < 0 else pbuf[k]
         t = S.ptet[p]
         S.pnext[p] = S.phead[t]
         S.phead[t] = p
