@@ -72,13 +72,13 @@ def build_parser():
                        description="A reduction compiles its kernels on first use (once; they load "
                                    "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
                                    "(swapping; insertion) in two processes side by side, as the workflow's "
-                                   "kernels rule does, then --part 2 the drivers of both methods; without "
-                                   "--part, everything.")
+                                   "kernels rule does, then --part 2 the method's driver; without "
+                                   "--part, everything the method needs.")
     from .methods import METHODS
 
     k.add_argument("--method", default="paper", choices=list(METHODS))
     k.add_argument("--part", type=int, choices=[0, 1, 2],
-                   help="one part only: 0 swapping, 1 insertion, 2 the drivers (default: all)")
+                   help="one part only: 0 swapping, 1 insertion, 2 the method's driver (default: all)")
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
                        description="Cells are matched on their key columns and compared with "

@@ -76,15 +76,53 @@ def _pin(fn, sig):
     fn.disable_compile(True)
 
 
+def entry_signatures(S, kernel):
+    """The kernels a reduction calls from Python, and the signatures it calls them with.
+
+    ``kernel`` is a method's ``KERNEL`` (``"paper"`` or ``"greedy"``): which driver
+    (:func:`~trivsel.mesh.drivers.run_insertions` or :func:`~trivsel.mesh.greedy.run_greedy`).
+    Everything else a reduction runs is compiled into these kernels' machine code.
+    """
+    from numba import typeof, types as nt
+
+    st = typeof(S)
+    i8, f8, b1 = nt.int64, nt.float64, nt.boolean
+    v8, m8, f82 = nt.int64[::1], nt.int64[:, ::1], nt.float64[:, ::1]
+    driver = ((greedy.run_greedy, (st, i8, f8, f8, v8)) if kernel == "greedy"
+              else (drivers.run_insertions, (st, v8, i8, i8, f8, f8)))
+    return [(storage._alloc, (st,)), (storage.fill_buckets, (st, v8)), (drivers.residuals, (st, nt.float64[::1])),
+            (insertion.insert_point, (st, i8)), (insertion.cone_from_hull, (st, i8)), (swap.swap, (st, v8, i8, b1, i8)),
+            driver, (drivers.global_pass, (st,)), (drivers.point_weights, (st, m8, f82))]
+
+
+def _cached(fn, sig):
+    """Whether numba's on-disk cache holds ``fn`` compiled for ``sig`` on this machine
+    (reads the cache's index only; ``False`` if it cannot tell)."""
+    try:
+        cache = fn._cache
+        return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
+    except Exception:  # another numba's internals: pin, as without a cache
+        return False
+
+
 def pin_signatures(S):
     """Compile each internal helper for its one argument signature (see the module
-    notes) and forbid further variants; once per state type."""
+    notes) and forbid further variants; once per state type.
+
+    When the cache already holds every kernel a reduction of this state calls
+    from Python (:func:`entry_signatures`), nothing will be compiled, so nothing
+    needs pinning: loading the 27 helpers from the cache would cost about a
+    second per process for machine code the entry kernels already contain.
+    """
     from numba import typeof
 
     if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: plain Python functions
         return
     st = typeof(S)
     if st in _PINNED:
+        return
+    kernel = "greedy" if S.opt.greedy else "paper"
+    if all(_cached(fn, sig) for fn, sig in entry_signatures(S, kernel)):
         return
     for fn, sig in helper_signatures(S):
         _pin(fn, sig)
@@ -98,6 +136,9 @@ _SWAP_ONLY = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.qu
               criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store)
 _LEAVES = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
            storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)
+# The entry kernels of insertion (part 1 of compile_kernels); the others are part 2's
+_INSERTION = (storage._alloc, storage.fill_buckets, drivers.residuals, insertion.insert_point,
+              insertion.cone_from_hull)
 PARTS = (0, 1, 2)
 
 
@@ -114,8 +155,8 @@ def compile_kernels(method="paper", part=None):
     ----------
     method : {"paper", "greedy", "decimate"}
         The method the kernels are for.  The insertion methods run the same
-        kernels up to the driver, and parts 2 and None compile both drivers;
-        ``"decimate"`` compiles :mod:`trivsel.decimation`'s kernel whatever the
+        kernels up to the driver, and parts 2 and None compile the method's own
+        driver (the other one compiles on its first run); ``"decimate"`` compiles :mod:`trivsel.decimation`'s kernel whatever the
         part.
     part : {None, 0, 1, 2}
         ``0``: swapping (section 4: 2-3, 3-2, 4-4 and 2-2 flips) and the
@@ -123,8 +164,8 @@ def compile_kernels(method="paper", part=None):
         (:func:`~trivsel.mesh.storage._replace`) that it shares with insertion.
         ``1``: point insertion (section 4: in a tet, on a face, on an edge),
         the replacement of tets, bucket filling and residuals.
-        ``2``: the drivers of both methods (:func:`~trivsel.mesh.drivers.run_insertions`,
-        :func:`~trivsel.mesh.greedy.run_greedy`), the global pass and the point
+        ``2``: the method's driver (:func:`~trivsel.mesh.drivers.run_insertions`
+        or :func:`~trivsel.mesh.greedy.run_greedy`), the global pass and the point
         weights; run after 0 and 1 it only loads their kernels from the cache.
         ``None``: everything, in one process.
 
@@ -133,7 +174,7 @@ def compile_kernels(method="paper", part=None):
     int
         The number of (kernel, signature) pairs compiled or loaded.
     """
-    from numba import typeof, types as nt
+    from numba import typeof
 
     if method not in ("paper", "greedy", "decimate"):
         raise ValueError(f"unknown method {method!r}: choose 'paper', 'greedy' or 'decimate'")
@@ -149,15 +190,13 @@ def compile_kernels(method="paper", part=None):
     S = make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
     st = typeof(S)
     helpers = helper_signatures(S)
-    i8, f8, v8, m8, f82 = nt.int64, nt.float64, nt.int64[::1], nt.int64[:, ::1], nt.float64[:, ::1]
     # cheap leaves first (every part), then each part's own subtree, callees first
     leaves = [h for h in helpers if h[0] in _LEAVES]
     replace = [h for h in helpers if h[0] in (heap._set_best, storage._replace)]
     swapping = [h for h in helpers if h[0] in _SWAP_ONLY] + replace + [h for h in helpers if h[0] is swap.swap]
-    insertion_ = [(storage.fill_buckets, (st, v8)), (drivers.residuals, (st, nt.float64[::1])),
-                  (insertion.insert_point, (st, i8)), (insertion.cone_from_hull, (st, i8))]
-    driving = [(drivers.run_insertions, (st, v8, i8, i8, f8, f8)), (greedy.run_greedy, (st, i8, f8, f8, v8)),
-               (drivers.global_pass, (st,)), (drivers.point_weights, (st, m8, f82))]
+    entries = [h for h in entry_signatures(S, method) if h[0] is not swap.swap]
+    insertion_ = [h for h in entries if h[0] in _INSERTION]
+    driving = [h for h in entries if h[0] not in _INSERTION]  # the driver, the global pass, the point weights
     if part == 0:
         plan = leaves + swapping
     elif part == 1:
