@@ -359,7 +359,9 @@ def _shared_stencils(points, todo, ptr, idx, min_rows=64):
     Rows are grouped by their index offsets (a hash, then checked exactly); a
     group is kept if it has at least ``min_rows`` rows, and within it only the
     rows whose coordinate offsets agree with its first row's (to 1e-9 of their
-    size, so rounding of the grid coordinates does not matter).
+    size, so rounding of the grid coordinates does not matter).  Everything goes
+    a column (one offset, one axis) at a time: rows x offsets temporaries of a
+    2-million-point grid would be hundreds of MB each.
 
     Returns a list of ``(rows, index offsets)``.
     """
@@ -367,25 +369,37 @@ def _shared_stencils(points, todo, ptr, idx, min_rows=64):
     if ln.size == 0:
         return []
     L = int(ln.max())
-    col = np.arange(L)
-    inrow = col[None, :] < ln[:, None]
-    off = np.where(inrow, idx[np.minimum(ptr[:-1, None] + col, idx.size - 1)] - todo[:, None], 0)
+    starts = ptr[:-1]
     mult = np.random.default_rng(0).integers(1, 2**62, size=L) | 1
+    h = ln * 1000003
+    last = idx.size - 1
     with np.errstate(over="ignore"):
-        h = (off * mult).sum(axis=1) + ln * 1000003
+        for k in range(L):
+            off_k = np.where(k < ln, idx[np.minimum(starts + k, last)] - todo, 0)
+            h = h + off_k * mult[k]
     uniq, inv, counts = np.unique(h, return_inverse=True, return_counts=True)
     groups = []
+    cols = [np.ascontiguousarray(points[:, a]) for a in range(3)]
     for g in np.flatnonzero(counts >= min_rows):
         rows = np.flatnonzero(inv == g)
         r0 = rows[0]
         m = int(ln[r0])
-        pattern = off[r0, :m]
-        rows = rows[(ln[rows] == m) & np.all(off[rows, :m] == pattern, axis=1)]
+        pattern = idx[starts[r0]:starts[r0] + m] - todo[r0]
+        rows = rows[ln[rows] == m]
+        sr, c = starts[rows], todo[rows]
+        ok = np.ones(rows.size, bool)
+        for k in range(m):
+            ok &= idx[sr + k] == c + pattern[k]
+        rows, c = rows[ok], c[ok]
         d0 = points[todo[r0] + pattern] - points[todo[r0]]
         tol = 1e-9 * max(float(np.abs(d0).max()), np.finfo(float).tiny)
-        c = todo[rows]
-        d = points[c[:, None] + pattern] - points[c][:, None, :]
-        rows = rows[np.all(np.abs(d - d0) <= tol, axis=(1, 2))]
+        ok = np.ones(rows.size, bool)
+        for a in range(3):
+            x = cols[a]
+            xc = x[c]
+            for k in range(m):
+                ok &= np.abs(x[c + pattern[k]] - xc - d0[k, a]) <= tol
+        rows = rows[ok]
         if rows.size >= min_rows:
             groups.append((rows, pattern))
     return groups
