@@ -1,30 +1,38 @@
 # Stage 4, figures: Figs. 4-6 of the paper for every function (matplotlib mid-plane
-# slices and a pyvista off-screen 3-D rendering) and E_RMS against the fraction.
+# slices and a pyvista off-screen 3-D rendering, one job each per n and variant) and E_RMS
+# against the fraction.
 
 
 rule slice_figure:
+    """One job per (n, variant) draws the figure of every function: the imports and the
+    renderer start once instead of once per function."""
     input:
-        data="results/data/f{function}_n{n}.npz",
-        errors="results/runs/n{n}/{variant}/f{function}/errors.csv",
+        data=expand("results/data/f{function}_n{{n}}.npz", function=FUNCTIONS),
+        errors=expand("results/runs/n{{n}}/{{variant}}/f{function}/errors.csv", function=FUNCTIONS),
         meshes=expand(
-            "results/runs/n{{n}}/{{variant}}/f{{function}}/mesh_{fraction}.vtu",
+            "results/runs/n{{n}}/{{variant}}/f{function}/mesh_{fraction}.vtu",
+            function=FUNCTIONS,
             fraction=FRACTION_LABELS,
         ),
     output:
-        report(
-            "results/runs/n{n}/{variant}/figures/slices_f{function}.png",
-            caption="../report/slices.rst",
-            category="Figures 4-6 (slices)",
-            subcategory="n = {n}, {variant}",
-            labels={"function": "{function}", "n": "{n}", "figure": "mid-plane slices"},
-        ),
+        [
+            report(
+                f"results/runs/n{{n}}/{{variant}}/figures/slices_f{f}.png",
+                caption="../report/slices.rst",
+                category="Figures 4-6 (slices)",
+                subcategory="n = {n}, {variant}",
+                labels={"function": str(f), "n": "{n}", "figure": "mid-plane slices"},
+            )
+            for f in FUNCTIONS
+        ],
     params:
+        functions=FUNCTIONS,
         fractions=FRACTIONS,
         code=CODE_FIGURES,
     log:
-        "results/logs/slice_figure/n{n}/{variant}/f{function}.log",
+        "results/logs/slice_figure/n{n}/{variant}.log",
     benchmark:
-        "results/benchmarks/slice_figure/n{n}/{variant}/f{function}.tsv"
+        "results/benchmarks/slice_figure/n{n}/{variant}.tsv"
     threads: 1
     resources:
         mem_mb=figure_mem_mb,
@@ -36,28 +44,35 @@ rule slice_figure:
 
 
 rule slice_figure_3d:
+    """One job per (n, variant) draws the figure of every function: the imports and the
+    renderer start once instead of once per function."""
     input:
-        data="results/data/f{function}_n{n}.npz",
-        errors="results/runs/n{n}/{variant}/f{function}/errors.csv",
+        data=expand("results/data/f{function}_n{{n}}.npz", function=FUNCTIONS),
+        errors=expand("results/runs/n{{n}}/{{variant}}/f{function}/errors.csv", function=FUNCTIONS),
         meshes=expand(
-            "results/runs/n{{n}}/{{variant}}/f{{function}}/mesh_{fraction}.vtu",
+            "results/runs/n{{n}}/{{variant}}/f{function}/mesh_{fraction}.vtu",
+            function=FUNCTIONS,
             fraction=FRACTION_LABELS,
         ),
     output:
-        report(
-            "results/runs/n{n}/{variant}/figures/slices3d_f{function}.png",
-            caption="../report/slices3d.rst",
-            category="Figures 4-6 (3-D)",
-            subcategory="n = {n}, {variant}",
-            labels={"function": "{function}", "n": "{n}", "figure": "3-D slices"},
-        ),
+        [
+            report(
+                f"results/runs/n{{n}}/{{variant}}/figures/slices3d_f{f}.png",
+                caption="../report/slices3d.rst",
+                category="Figures 4-6 (3-D)",
+                subcategory="n = {n}, {variant}",
+                labels={"function": str(f), "n": "{n}", "figure": "3-D slices"},
+            )
+            for f in FUNCTIONS
+        ],
     params:
+        functions=FUNCTIONS,
         fractions=FRACTIONS,
         code=CODE_FIGURES,
     log:
-        "results/logs/slice_figure_3d/n{n}/{variant}/f{function}.log",
+        "results/logs/slice_figure_3d/n{n}/{variant}.log",
     benchmark:
-        "results/benchmarks/slice_figure_3d/n{n}/{variant}/f{function}.tsv"
+        "results/benchmarks/slice_figure_3d/n{n}/{variant}.tsv"
     threads: 1
     resources:
         mem_mb=figure_mem_mb,

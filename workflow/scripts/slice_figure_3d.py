@@ -1,4 +1,4 @@
-"""Rule slice_figure_3d: the 2 x 2 panel rendered off-screen with pyvista."""
+"""Rule slice_figure_3d: the 2 x 2 panel rendered off-screen with pyvista, for every function."""
 
 import sys
 
@@ -10,8 +10,9 @@ from trivsel.io import load  # noqa: E402
 from trivsel.study.figures import slice_figure_3d  # noqa: E402
 
 sm = snakemake  # noqa: F821
-data = load(sm.input.data)
-errors = pd.read_csv(sm.input.errors)
-meshes = dict(zip(sm.params.fractions, sm.input.meshes))
-slice_figure_3d(data, meshes, sm.output[0], errors=errors, function=int(sm.wildcards.function))
-print(f"wrote {sm.output[0]}")
+k = len(sm.params.fractions)  # the meshes come function by function, fraction by fraction
+for i, function in enumerate(sm.params.functions):
+    meshes = dict(zip(sm.params.fractions, sm.input.meshes[i * k:(i + 1) * k]))
+    slice_figure_3d(load(sm.input.data[i]), meshes, sm.output[i], errors=pd.read_csv(sm.input.errors[i]),
+                    function=int(function))
+    print(f"wrote {sm.output[i]}")
