@@ -378,10 +378,12 @@ def _shared_stencils(points, todo, ptr, idx, min_rows=64):
             off_k = np.where(k < ln, idx[np.minimum(starts + k, last)] - todo, 0)
             h = h + off_k * mult[k]
     uniq, inv, counts = np.unique(h, return_inverse=True, return_counts=True)
+    by_group = np.argsort(inv.ravel(), kind="stable")  # each group's rows, ascending
+    ends = np.cumsum(counts)
     groups = []
     cols = [np.ascontiguousarray(points[:, a]) for a in range(3)]
     for g in np.flatnonzero(counts >= min_rows):
-        rows = np.flatnonzero(inv == g)
+        rows = by_group[ends[g] - counts[g]:ends[g]]
         r0 = rows[0]
         m = int(ln[r0])
         pattern = idx[starts[r0]:starts[r0] + m] - todo[r0]

@@ -26,6 +26,7 @@ rule slice_figure:
             for f in FUNCTIONS
         ],
     params:
+        draw="slice_figure",
         functions=FUNCTIONS,
         fractions=FRACTIONS,
         code=CODE_FIGURES,
@@ -40,7 +41,7 @@ rule slice_figure:
     conda:
         "../envs/trivsel.yaml"
     script:
-        "../scripts/slice_figure.py"
+        "../scripts/slice_figures.py"
 
 
 rule slice_figure_3d:
@@ -66,6 +67,7 @@ rule slice_figure_3d:
             for f in FUNCTIONS
         ],
     params:
+        draw="slice_figure_3d",
         functions=FUNCTIONS,
         fractions=FRACTIONS,
         code=CODE_FIGURES,
@@ -80,7 +82,7 @@ rule slice_figure_3d:
     conda:
         "../envs/trivsel.yaml"
     script:
-        "../scripts/slice_figure_3d.py"
+        "../scripts/slice_figures.py"
 
 
 rule erms_figure:
