@@ -26,6 +26,7 @@ from . import criteria, drivers, flips, geometry, greedy, heap, insertion, stora
 from .state import make_state
 
 _PINNED = set()  # state types the helpers are compiled for
+_FROM_CACHE = set()  # (state type, method kernel) whose entry kernels were all in the cache
 
 
 def helper_signatures(S):
@@ -122,7 +123,10 @@ def pin_signatures(S):
     if st in _PINNED:
         return
     kernel = "greedy" if S.opt.greedy else "paper"
+    if (st, kernel) in _FROM_CACHE:
+        return
     if all(_cached(fn, sig) for fn, sig in entry_signatures(S, kernel)):
+        _FROM_CACHE.add((st, kernel))
         return
     for fn, sig in helper_signatures(S):
         _pin(fn, sig)
