@@ -251,7 +251,7 @@ def test_jit_and_pure_python_give_identical_results(tmp_path):
 
 
 _KERNELS = """
-import importlib, json, pkgutil, sys, numba, trivsel
+import importlib, json, pkgutil, numba, trivsel
 from trivsel import mesh, predicates
 modules = [predicates] + [importlib.import_module("trivsel.mesh." + m.name) for m in pkgutil.iter_modules(mesh.__path__)]
 kernels = list({id(f): f for m in modules for f in vars(m).values()

@@ -160,8 +160,8 @@ def compile_kernels(method="paper", part=None):
     method : {"paper", "greedy", "decimate"}
         The method the kernels are for.  The insertion methods run the same
         kernels up to the driver, and parts 2 and None compile the method's own
-        driver (the other one compiles on its first run); ``"decimate"`` compiles :mod:`trivsel.decimation`'s kernel whatever the
-        part.
+        driver (the other one compiles on its first run); ``"decimate"``
+        compiles :mod:`trivsel.decimation`'s kernel whatever the part.
     part : {None, 0, 1, 2}
         ``0``: swapping (section 4: 2-3, 3-2, 4-4 and 2-2 flips) and the
         evaluation of configurations, with the replacement of tets
