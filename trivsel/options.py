@@ -124,6 +124,12 @@ class Options:
         "max", "greedy only: insert the point with the largest residual ('max', aims at E_inf) or the worst "
         "point of the tetrahedron with the largest squared-residual sum ('sse', aims at E_RMS)",
         kind="choice", choices=("max", "sse"), tag="gkey")
+    lazy_queue: bool = _option(
+        True, "decimate only: while more than twice the target count of vertices remain (and E_RMS, E_inf are "
+        "below half of tol_rms, tol_inf), a vertex whose tetrahedra changed keeps its queued cost until it reaches "
+        "the head of the queue; nearer the stop every changed vertex is costed again at once. False: that strict "
+        "greedy order throughout (slower; the errors at the stop differ by a few percent either way)",
+        kind="bool", tag="lazy")
     boundary_flips: bool | None = _option(
         None, "also flip an edge between two coplanar hull faces to the other diagonal of their "
         "quadrilateral (2-2 flip), so that the boundary's triangulation adapts too",

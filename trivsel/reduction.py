@@ -14,6 +14,7 @@
 from __future__ import annotations
 
 import inspect
+import math
 import logging
 import time
 from dataclasses import dataclass, field, replace
@@ -289,7 +290,7 @@ def _requested_fractions(snapshots, fractions, N):
 
 def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, progress, t_start):
     """``method="decimate"``: the run goes down from the full grid (:mod:`trivsel.decimation`)."""
-    from .decimation import reduce_by_collapse
+    from .decimation import EXACT_WITHIN, reduce_by_collapse
     from .resources import check_memory
 
     if boundary is not None:
@@ -309,6 +310,7 @@ def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, 
     snaps, selected, stats, t_errors = reduce_by_collapse(
         data, targets, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], candidates=opts.candidates,
         key="max" if opts.criterion == "max" else "sse",
+        exact_within=EXACT_WITHIN if opts.lazy_queue else math.inf,
         values=opts.values, interior=interior, check=check, progress=scaling.progress_out(progress),
         t_start=t_start)
     _requested_fractions(snaps, stop["fractions"], N)
