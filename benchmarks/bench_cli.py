@@ -1,11 +1,11 @@
 """Whole processes against whole processes: `trivsel reduce FILE.vti` against a VTK script.
 
 Both sides start a fresh Python process, import what they need, read the same ``.vti``
-(Table-1 function 4 on an (n+1)^3 grid), reduce it to 10 % of its points and write a
-``.vtu``.  VTK's side is what a VTK user would run, at its fastest: every combination
-of the two tetrahedral splits a user reaches for (pyvista's ``triangulate()``, 5 tets
-per cell; the Kuhn split, 6) and the two ways to stop
-``vtkUnstructuredGridQuadricDecimation`` (``SetTargetReduction(0.9)``, or
+(Table-1 function 4 on an (n+1)^3 grid, or a volume of trivsel.study.realdata), reduce it
+to a fraction of its points (10 %) and write a ``.vtu``.  VTK's side is what a VTK user
+would run, at its fastest: every combination of the two tetrahedral splits a user reaches
+for (pyvista's ``triangulate()``, 5 tets per cell; the Kuhn split, 6) and the two ways to
+stop ``vtkUnstructuredGridQuadricDecimation`` (``SetTargetReduction(1 - fraction)``, or
 ``SetNumberOfEdgesToDecimate`` to the same vertex count as trivsel) is timed, and the
 fastest variant's median counts.  Runs alternate between the programs so that a
 change in the machine's load hits both.  trivsel's numba kernels are compiled once
@@ -13,6 +13,7 @@ before the timing (a first-use cost, measured by ``trivsel compile``).
 
     python benchmarks/bench_cli.py                      # n = 32, 64; 3 runs each
     python benchmarks/bench_cli.py --n 32 64 128 --repeats 3
+    python benchmarks/bench_cli.py --volumes icbm152 statmap aniso --fractions 0.1 0.05 --methods decimate
 
 Prints one table: median seconds per program and the ratio trivsel / VTK's fastest.
 """
@@ -33,7 +34,7 @@ import numpy as np
 import pyvista as pv
 from vtkmodules.vtkFiltersCore import vtkUnstructuredGridQuadricDecimation
 
-src, dst, split, stop, n_keep = sys.argv[1], sys.argv[2], sys.argv[3], sys.argv[4], int(sys.argv[5])
+src, dst, split, stop, n_keep, fraction = sys.argv[1:5] + [int(sys.argv[5]), float(sys.argv[6])]
 image = pv.read(src)
 if split == "pv5":
     grid = image.triangulate()
@@ -59,7 +60,7 @@ flt = vtkUnstructuredGridQuadricDecimation()
 flt.SetInputData(grid)
 flt.SetScalarsName("f")
 if stop == "target":
-    flt.SetTargetReduction(0.9)
+    flt.SetTargetReduction(1.0 - fraction)
 else:
     flt.SetTargetReduction(0.0)
     flt.SetNumberOfEdgesToDecimate(grid.n_points - n_keep)
@@ -70,13 +71,10 @@ print(out.n_points)
 '''
 
 
-def write_vti(n, path):
-    import numpy as np
+def write_vti(d, path):
+    """Grid data ``d`` (:class:`trivsel.PointData`) as a ``.vti`` with the point array ``f``."""
     import pyvista as pv
 
-    import trivsel
-
-    d = trivsel.sample_grid(4, n)
     img = pv.ImageData(dimensions=d.shape, spacing=tuple(d.spacing), origin=tuple(d.origin))
     img.point_data["f"] = d.values.reshape(d.shape).ravel(order="F")  # VTK order: x fastest
     img.save(path)
@@ -94,11 +92,21 @@ def run(cmd):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--n", type=int, nargs="+", default=[32, 64], help="grid intervals per axis")
+    ap.add_argument("--n", type=int, nargs="+", help="grid intervals per axis of function 4 (default: 32 64, "
+                    "unless --volumes)")
+    ap.add_argument("--volumes", nargs="+", default=[], help="volumes of trivsel.study.realdata")
+    ap.add_argument("--fractions", type=float, nargs="+", default=[0.1])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", nargs="+", default=["paper", "greedy"])
     a = ap.parse_args(argv)
+    import trivsel
     from trivsel.selection import count_for_fraction
+
+    cases = [(f"f4 {n + 1}^3", lambda n=n: trivsel.sample_grid(4, n)) for n in (a.n or ([] if a.volumes else [32, 64]))]
+    if a.volumes:
+        from trivsel.study.realdata import load_volume
+
+        cases += [(v, lambda v=v: load_volume(v)) for v in a.volumes]
 
     py = sys.executable
     subprocess.run([py, "-m", "trivsel", "compile"], check=True, capture_output=True)
@@ -107,30 +115,33 @@ def main(argv=None):
         tmp = Path(tmp)
         script = tmp / "vtk_decimate.py"
         script.write_text(VTK_SCRIPT)
-        for n in a.n:
-            vti = tmp / f"f4_n{n}.vti"
-            N = write_vti(n, vti)
-            keep = count_for_fraction(0.1, N)
-            progs = {m: [py, "-m", "trivsel", "reduce", str(vti), "--array", "f", "--fractions", "0.1",
-                         "--method", m, "--progress", "never", "--out", str(tmp / f"out_{m}")] for m in a.methods}
-            for split in ("pv5", "kuhn6"):
-                for stop in ("target", "edges"):
-                    progs[f"vtk-{split}-{stop}"] = [py, str(script), str(vti), str(tmp / "vtk.vtu"), split, stop,
-                                                    str(keep)]
-            times = {k: [] for k in progs}
-            for _ in range(a.repeats):
-                for name, cmd in progs.items():
-                    times[name].append(run(cmd)[0])
-            med = {k: statistics.median(v) for k, v in times.items()}
-            vtk_best = min((k for k in med if k.startswith("vtk-")), key=med.get)
-            for m in a.methods:
-                rows.append((n, N, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best]))
-            print(f"n = {n}: " + ", ".join(f"{k} {v:.2f} s" for k, v in med.items()), flush=True)
-    print(f"\nf4 to 10 %, whole processes, medians of {a.repeats} alternating runs")
-    print("| points | method | trivsel s | VTK's fastest | VTK s | ratio |")
-    print("|---|---|---|---|---|---|")
-    for n, N, m, t, best, tv, ratio in rows:
-        print(f"| {n + 1}^3 = {N} | {m} | {t:.2f} | {best} | {tv:.2f} | **{ratio:.2f}** |")
+        for label, make in cases:
+            d = make()
+            vti = tmp / "input.vti"
+            write_vti(d, vti)
+            N = d.n_points
+            for fraction in a.fractions:
+                keep = count_for_fraction(fraction, N)
+                progs = {m: [py, "-m", "trivsel", "reduce", str(vti), "--array", "f", "--fractions", str(fraction),
+                             "--method", m, "--progress", "never", "--out", str(tmp / f"out_{m}")] for m in a.methods}
+                for split in ("pv5", "kuhn6"):
+                    for stop in ("target", "edges"):
+                        progs[f"vtk-{split}-{stop}"] = [py, str(script), str(vti), str(tmp / "vtk.vtu"), split, stop,
+                                                        str(keep), str(fraction)]
+                times = {k: [] for k in progs}
+                for _ in range(a.repeats):
+                    for name, cmd in progs.items():
+                        times[name].append(run(cmd)[0])
+                med = {k: statistics.median(v) for k, v in times.items()}
+                vtk_best = min((k for k in med if k.startswith("vtk-")), key=med.get)
+                for m in a.methods:
+                    rows.append((label, N, fraction, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best]))
+                print(f"{label} to {fraction:g}: " + ", ".join(f"{k} {v:.2f} s" for k, v in med.items()), flush=True)
+    print(f"\nwhole processes, medians of {a.repeats} alternating runs")
+    print("| input | points | kept | method | trivsel s | VTK's fastest | VTK s | ratio |")
+    print("|---|---|---|---|---|---|---|---|")
+    for label, N, fraction, m, t, best, tv, ratio in rows:
+        print(f"| {label} | {N} | {fraction:.0%} | {m} | {t:.2f} | {best} | {tv:.2f} | **{ratio:.2f}** |")
 
 
 if __name__ == "__main__":
