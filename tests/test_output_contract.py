@@ -10,8 +10,10 @@ import subprocess
 import sys
 import time
 
+import numpy as np
 import pytest
 
+import trivsel
 import trivsel.io as tio
 from trivsel.cli import main
 
@@ -142,3 +144,24 @@ def test_python_dash_m_ends_with_130_on_ctrl_c(tmp_path):
     assert err.replace("\r", "\n").strip().splitlines()[-1] == (
         "trivsel: interrupted; the output folder is as it was before this run")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("make", [
+    lambda: trivsel.reduce(4, n=6, fractions=[0.5, 0.1]),
+    lambda: trivsel.reduce(2, n=6, fractions=[0.2], method="decimate", values=["data", "fit"]),
+    lambda: trivsel.reduce(trivsel.scattered(np.random.default_rng(1).random((200, 3)),
+                                             np.random.default_rng(2).random(200)), count=120, method="greedy"),
+    lambda: trivsel.reduce(4, n=6, tol_rms=0.01, method="decimate"),
+])
+def test_errors_csv_and_the_printed_table_are_what_pandas_writes(tmp_path, make):
+    """errors.csv and the table ``trivsel reduce`` prints are written without pandas, byte for
+    byte as ``DataFrame.to_csv`` and ``to_string`` would (grid and scattered inputs, fitted
+    values, a fraction from a tolerance); a NaN is an empty CSV cell and ``NaN`` in the table."""
+    pd = pytest.importorskip("pandas")
+    rows = make().error_rows()
+    rows[-1]["E_rms_interior"] = float("nan")  # as for a region with no points
+    tio.write_csv_rows(rows, tmp_path / "a.csv")
+    pd.DataFrame(rows).to_csv(tmp_path / "b.csv", index=False)
+    assert (tmp_path / "a.csv").read_bytes() == (tmp_path / "b.csv").read_bytes()
+    fmt = lambda v: f"{v:.6g}"  # noqa: E731
+    assert tio.format_rows(rows, fmt) == pd.DataFrame(rows).to_string(index=False, float_format=fmt)

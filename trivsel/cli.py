@@ -162,7 +162,7 @@ def _show_stages():
 def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
-    from .io import check_output_dir, load, write_outputs
+    from .io import check_output_dir, format_rows, load, write_outputs
     from .options import from_namespace
     from .reduction import reduce
 
@@ -194,8 +194,7 @@ def _cmd_reduce(a):
                     boundary=boundary, options=options, threads=a.threads, check=check,
                     progress=_progress_line if show else None)
     out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
-    df = result.errors_frame()
-    print(df.to_string(index=False, float_format=lambda v: f"{v:.6g}"))
+    print(format_rows(result.error_rows()))
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
           f"in {result.timings['total']:.2f} s", file=sys.stderr)
     return 0

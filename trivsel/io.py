@@ -492,6 +492,49 @@ def _remove_stale_temporaries(out):
             shutil.rmtree(p, ignore_errors=True)
 
 
+def _cell(v, float_format=None):
+    """One CSV or table cell: floats by ``float_format`` (default ``repr``, as pandas writes
+    them), NaN and None as empty, anything else by ``str``."""
+    if v is None:
+        return ""
+    if isinstance(v, (float, np.floating)):
+        if v != v:
+            return ""
+        return float_format(v) if float_format else repr(float(v))
+    return str(v)
+
+
+def write_csv_rows(rows, path):
+    """``rows`` (dicts with the same keys) as a CSV file with a header, the same bytes as
+    ``pandas.DataFrame(rows).to_csv(path, index=False)`` for numbers and plain strings, without
+    importing pandas (a command-line run saves its import)."""
+    import csv
+
+    with open(path, "w", newline="") as fh:
+        w = csv.writer(fh, lineterminator="\n")
+        if rows:
+            w.writerow(list(rows[0]))
+            for r in rows:
+                w.writerow([_cell(v) for v in r.values()])
+
+
+def format_rows(rows, float_format=lambda v: f"{v:.6g}"):
+    """``rows`` as a text table, columns right-aligned under their names, a numeric column one
+    wider than its name (the layout of ``pandas.DataFrame.to_string(index=False)``)."""
+    if not rows:
+        return ""
+    lines = [[] for _ in range(len(rows) + 1)]
+    for name in rows[0]:
+        vals = [r[name] for r in rows]
+        numeric = all(isinstance(v, (numbers.Real, np.number)) and not isinstance(v, (bool, np.bool_))
+                      for v in vals)
+        cells = [name] + ["NaN" if numeric and v != v else _cell(v, float_format) for v in vals]
+        width = max(max(map(len, cells)), len(name) + numeric)
+        for line, c in zip(lines, cells):
+            line.append(c.rjust(width))
+    return "\n".join(" ".join(line) for line in lines)
+
+
 def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
     """Write ``errors.csv``, ``mesh_<fraction>.vtu`` and ``result.json`` into ``out_dir``.
 
@@ -514,7 +557,7 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
     tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=out))
     try:
         names = ["errors.csv"]
-        result.errors_frame().to_csv(tmp / "errors.csv", index=False)
+        write_csv_rows(result.error_rows(), tmp / "errors.csv")
         for s in result.snapshots:
             name = f"mesh_{fraction_label(s.fraction)}.vtu"
             snapshot_to_pyvista(result, s).save(str(tmp / name))

@@ -101,12 +101,16 @@ class ReductionResult:
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 
     def errors_frame(self):
-        """One row per snapshot with the columns of ``errors.csv``.
+        """One row per snapshot with the columns of ``errors.csv``, as a pandas DataFrame.
 
         No wall times: two runs with the same input and options give the same table
         (the times are in ``result.json``: ``snapshots[*].seconds`` and ``timings``)."""
         import pandas as pd
 
+        return pd.DataFrame(self.error_rows())
+
+    def error_rows(self):
+        """The rows of :meth:`errors_frame` as a list of dicts (column order kept)."""
         rows = []
         for mode in self.options.get("values", ["data"]):
             for s in self.snapshots:
@@ -120,7 +124,7 @@ class ReductionResult:
                     "n_selected": s.n_selected,
                     **{k: err[k] for k in ("E_rms", "E_rms_interior", "E_inf", "E_inf_interior")},
                 })
-        return pd.DataFrame(rows)
+        return rows
 
 
 _STOP_PARAMS = """    data : PointData, int or str
