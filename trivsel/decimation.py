@@ -794,9 +794,12 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
 
 def compile_kernels():
     """Compile (or load from numba's cache) every kernel of a decimation, with a run on a
-    3 x 3 x 3 grid; returns the number of entry kernels (the others are compiled into them)."""
+    3 x 3 x 3 grid (lazy updates, then exact ones); returns the number of entry kernels
+    (the others are compiled into them)."""
     g = np.indices((3, 3, 3)).reshape(3, -1).T
-    dec = Decimation(g, (3, 3, 3), np.arange(27.0) % 5)
+    dec = Decimation(g, (3, 3, 3), np.arange(27.0) % 5, lazy=True)
+    dec.run(16)
+    dec.lazy = False
     dec.run(8)
     dec.point_weights()
-    return sum(1 for f in (_init, _run, _weights) if f.signatures)
+    return sum(1 for f in (_init, _run, _flush, _weights) if f.signatures)
