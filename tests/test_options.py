@@ -156,12 +156,13 @@ def test_import_trivsel_is_light():
     assert out.strip() == "[]"
 
 
-def test_a_command_line_reduction_does_not_import_pandas(tmp_path):
-    """``trivsel reduce`` writes errors.csv and prints its table without pandas (half a second
-    of every command-line run)."""
+def test_a_command_line_reduction_does_not_import_pandas_or_pyvista(tmp_path):
+    """``trivsel reduce`` writes errors.csv and prints its table without pandas, and its
+    ``.vtu`` files with VTK's own modules, without pyvista (together about 0.7 s of every
+    command-line run that does not read a VTK file)."""
     code = (f"import sys; from trivsel.cli import main; main(['reduce', '--function', '4', '--n', '4', "
             f"'--fractions', '0.5', '--out', {str(tmp_path / 'out')!r}]); "
-            "print([m for m in ('pandas', 'matplotlib', 'trivsel.study') if m in sys.modules])")
+            "print([m for m in ('pandas', 'pyvista', 'matplotlib', 'trivsel.study') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
     assert (tmp_path / "out" / "errors.csv").read_text().startswith("function,n,method,values,fraction,")

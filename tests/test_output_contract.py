@@ -60,7 +60,7 @@ def test_a_failure_while_writing_keeps_the_previous_outputs_and_leaves_no_litter
     assert _run("--fractions", "0.5", "0.2", "--out", str(out)) == 0
     before = {p.name: p.read_bytes() for p in out.iterdir()}
     calls = []
-    real = tio.snapshot_to_pyvista
+    real = tio.snapshot_to_vtk
 
     def failing(result, snapshot):
         calls.append(1)
@@ -68,7 +68,7 @@ def test_a_failure_while_writing_keeps_the_previous_outputs_and_leaves_no_litter
             raise KeyboardInterrupt  # as Ctrl-C or SIGTERM would, half-way through the meshes
         return real(result, snapshot)
 
-    monkeypatch.setattr(tio, "snapshot_to_pyvista", failing)
+    monkeypatch.setattr(tio, "snapshot_to_vtk", failing)
     assert _run("--fractions", "0.4", "0.1", "--out", str(out)) == 130
     assert {p.name: p.read_bytes() for p in out.iterdir()} == before
 
@@ -144,6 +144,46 @@ def test_python_dash_m_ends_with_130_on_ctrl_c(tmp_path):
     assert err.replace("\r", "\n").strip().splitlines()[-1] == (
         "trivsel: interrupted; the output folder is as it was before this run")
     assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("make", [
+    lambda: trivsel.reduce(4, n=6, fractions=[0.5, 0.1], values=["data", "fit"]),
+    lambda: trivsel.reduce(2, n=6, fractions=[0.2], method="decimate"),
+    lambda: trivsel.reduce(trivsel.scattered(np.random.default_rng(1).random((200, 3)),
+                                             np.random.default_rng(2).random(200)), count=120, method="greedy"),
+])
+def test_mesh_files_are_what_pyvista_writes(tmp_path, make):
+    """The ``.vtu`` files are written with VTK's modules alone, byte for byte as pyvista's
+    ``save`` writes the same mesh (points, tetrahedra, the point and field arrays, the active
+    scalars); and they read back to the snapshot's vertices and tetrahedra."""
+    pv = pytest.importorskip("pyvista")
+    result = make()
+    for k, s in enumerate(result.snapshots):
+        tio.write_vtu(tio.snapshot_to_vtk(result, s), tmp_path / f"a{k}.vtu")
+        sel = np.unique(s.tets)
+        grid = pv.UnstructuredGrid(np.hstack([np.full((len(s.tets), 1), 4), np.searchsorted(sel, s.tets)]).ravel(),
+                                   np.full(len(s.tets), pv.CellType.TETRA, np.uint8), result.data.points[sel])
+        grid.point_data["value"] = result.data.values[sel]
+        if s.fit is not None:
+            fitted = np.empty(len(sel))
+            fitted[np.searchsorted(sel, s.fit["vertices"])] = s.fit["values"]
+            grid.point_data["fitted_value"] = fitted
+        grid.point_data["original_index"] = result.data.file_ids(sel)
+        if result.curvature is not None:
+            grid.point_data["curvature"] = result.curvature[sel]
+        grid.field_data["fraction"] = np.array([s.fraction])
+        grid.save(tmp_path / f"b{k}.vtu")
+        assert (tmp_path / f"a{k}.vtu").read_bytes() == (tmp_path / f"b{k}.vtu").read_bytes()
+        back = pv.read(tmp_path / f"a{k}.vtu")
+        assert np.array_equal(back.points, result.data.points[sel])
+        assert np.array_equal(sel[back.cells_dict[pv.CellType.TETRA]], s.tets)
+        assert back.point_data.active_scalars_name == "value"
+
+
+def test_a_mesh_file_that_cannot_be_written_is_an_error(tmp_path):
+    result = trivsel.reduce(4, n=4, fractions=[0.5])
+    with pytest.raises(OSError, match="could not write"):
+        tio.write_vtu(tio.snapshot_to_vtk(result, result.snapshots[0]), tmp_path / "missing" / "m.vtu")
 
 
 @pytest.mark.parametrize("make", [

@@ -49,8 +49,8 @@ import numpy as np
 from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError, one_line
 
-__all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_pyvista",
-           "fraction_label"]
+__all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
+           "snapshot_to_pyvista", "write_vtu", "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -414,34 +414,74 @@ def save_npz(data: PointData, path):
     return path
 
 
-def snapshot_to_pyvista(result, snapshot):
-    """The snapshot's mesh as a pyvista UnstructuredGrid over the selected points.
+def snapshot_to_vtk(result, snapshot):
+    """The snapshot's mesh as a VTK ``vtkUnstructuredGrid`` of tetrahedra over the selected
+    points, built with VTK's own modules (no pyvista import: a command-line run writes its
+    ``.vtu`` files without it).
 
     Point data: ``value`` (the selected points' own values), ``original_index``
     (the point's id in the input: its row in a ``.csv`` or ``.npz``, its VTK point id
     in a ``.vti``/``.vtu``, its voxel's Fortran-order index in a NIfTI or NRRD volume;
     for ``--function`` grids the C-order index over (i, j, k)),
     ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
-    and, with ``values="fit"``, ``fitted_value``.
+    and, with ``values="fit"``, ``fitted_value``.  Field data: ``fraction``.
     """
-    import pyvista as pv
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import VTK_TETRA, vtkCellArray, vtkUnstructuredGrid
 
     sel = np.unique(snapshot.tets)
     remap = np.full(result.data.n_points, -1, np.int64)
     remap[sel] = np.arange(len(sel))
-    cells = np.hstack([np.full((len(snapshot.tets), 1), 4), remap[snapshot.tets]]).ravel()
-    types = np.full(len(snapshot.tets), pv.CellType.TETRA, np.uint8)
-    grid = pv.UnstructuredGrid(cells, types, result.data.points[sel])
-    grid.point_data["value"] = result.data.values[sel]
+    arrays = {"value": result.data.values[sel]}
     if snapshot.fit is not None:
         fitted = np.empty(len(sel))
         fitted[np.searchsorted(sel, snapshot.fit["vertices"])] = snapshot.fit["values"]
-        grid.point_data["fitted_value"] = fitted
-    grid.point_data["original_index"] = result.data.file_ids(sel)
+        arrays["fitted_value"] = fitted
+    arrays["original_index"] = result.data.file_ids(sel)
     if result.curvature is not None:  # greedy does not compute it
-        grid.point_data["curvature"] = result.curvature[sel]
-    grid.field_data["fraction"] = np.array([snapshot.fraction])
+        arrays["curvature"] = result.curvature[sel]
+
+    def vtk_array(a, name):
+        out = numpy_to_vtk(np.ascontiguousarray(a), deep=True)
+        out.SetName(name)
+        return out
+
+    grid = vtkUnstructuredGrid()
+    points = vtkPoints()
+    points.SetData(vtk_array(np.asarray(result.data.points[sel], np.float64), "Points"))
+    grid.SetPoints(points)
+    m = len(snapshot.tets)
+    cells = vtkCellArray()
+    cells.SetData(numpy_to_vtk(np.arange(0, 4 * m + 1, 4, dtype=np.int64), deep=True),
+                  numpy_to_vtk(np.ascontiguousarray(remap[snapshot.tets].ravel()), deep=True))
+    grid.SetCells(VTK_TETRA, cells)
+    for name, a in arrays.items():
+        grid.GetPointData().AddArray(vtk_array(a, name))
+    grid.GetPointData().SetActiveScalars("value")
+    grid.GetFieldData().AddArray(vtk_array(np.array([snapshot.fraction], np.float64), "fraction"))
     return grid
+
+
+def snapshot_to_pyvista(result, snapshot):
+    """The snapshot's mesh (:func:`snapshot_to_vtk`) as a pyvista ``UnstructuredGrid``."""
+    import pyvista as pv
+
+    return pv.wrap(snapshot_to_vtk(result, snapshot))
+
+
+def write_vtu(grid, path):
+    """Write a ``vtkUnstructuredGrid`` as a ``.vtu`` file: binary, zlib-compressed (as
+    pyvista's ``save`` writes it).  Raises OSError if VTK's writer fails."""
+    from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridWriter
+
+    writer = vtkXMLUnstructuredGridWriter()
+    writer.SetFileName(str(path))
+    writer.SetInputData(grid)
+    writer.SetDataModeToBinary()
+    writer.SetCompressorTypeToZLib()
+    if writer.Write() != 1 or not Path(path).is_file():
+        raise OSError(f"VTK could not write {str(path)!r}")
 
 
 def _jsonable(obj):
@@ -560,7 +600,7 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
         write_csv_rows(result.error_rows(), tmp / "errors.csv")
         for s in result.snapshots:
             name = f"mesh_{fraction_label(s.fraction)}.vtu"
-            snapshot_to_pyvista(result, s).save(str(tmp / name))
+            write_vtu(snapshot_to_vtk(result, s), tmp / name)
             names.append(name)
         info = {
             "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
