@@ -20,9 +20,15 @@ import trivsel
 from trivsel.study.realdata import load_volume, warm_up
 
 
+def _cell(row, key):
+    """A CSV value to 4 significant digits, or "-" if the run had no such column (a CSV of
+    ``bench_realdata.py --methods decimate`` has no greedy columns)."""
+    return f"{float(row[key]):.4g}" if row.get(key) not in (None, "") else "-"
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("csv", help="a bench_realdata.py CSV (with decimate and greedy columns)")
+    ap.add_argument("csv", help="a bench_realdata.py CSV (with decimate columns; greedy's are optional)")
     a = ap.parse_args(argv)
     with open(a.csv, newline="") as fh:
         rows = list(csv.DictReader(fh))
@@ -41,7 +47,7 @@ def main(argv=None):
         took = time.perf_counter() - t0
         vtk = float(r["vtk_E_inf"])
         print(f"| {name} | {100 * float(r['fraction']):g} % | {r['n_vertices']} | {vtk:.4g} | "
-              f"{float(r['greedy_E_inf']):.4g} | {float(r['decimate_E_inf']):.4g} | {s.errors['E_inf']:.4g} | "
+              f"{_cell(r, 'greedy_E_inf')} | {float(r['decimate_E_inf']):.4g} | {s.errors['E_inf']:.4g} | "
               f"{s.errors['E_inf'] / vtk:.2f} | {float(r['decimate_fit_E_rms']):.4g} | "
               f"{s.fit['errors']['E_rms']:.4g} | {took:.1f} |", flush=True)
 
