@@ -287,3 +287,59 @@ def test_nrrd_refusals_are_one_line(tmp_path):
         with pytest.raises(trivsel.InputError, match=message) as info:
             load(tmp_path / name)
         assert "\n" not in str(info.value) and name in str(info.value)
+
+
+def _vtk_files(tmp_path):
+    """One small file of each VTK format trivsel reads, written by pyvista, with a value
+    array ``f`` (and a second array, so that ``--array`` matters)."""
+    rng = np.random.default_rng(5)
+    img = _image(True)
+    img.point_data["f"] = rng.random(img.n_points)
+    rect = pv.RectilinearGrid(np.array([0.0, 1.0, 3.0]), np.array([0.0, 2.0, 5.0, 6.0]), np.array([1.0, 2.5]))
+    structured = _image(False).cast_to_structured_grid()
+    cloud = pv.PolyData(rng.random((40, 3)))
+    files = {"v.vti": img, "v.vtk": img, "r.vtr": rect, "s.vts": structured,
+             "u.vtu": _image(False).cast_to_unstructured_grid(), "p.vtp": cloud}
+    for name, mesh in files.items():
+        mesh.point_data["f"] = rng.random(mesh.n_points)
+        mesh.point_data["g"] = np.arange(mesh.n_points)
+        mesh.save(tmp_path / name)
+    return files
+
+
+def test_every_vtk_format_reads_as_pyvista_reads_it(tmp_path):
+    """VTK files are read with VTK's own readers (no pyvista): the points, the values and, for
+    image data, the grid's geometry are those pyvista reads from the same file."""
+    for name, mesh in _vtk_files(tmp_path).items():
+        data = load(tmp_path / name, "f")
+        back = pv.read(tmp_path / name)
+        if isinstance(back, pv.ImageData):
+            assert data.is_grid and data.shape == tuple(back.dimensions), name
+            np.testing.assert_array_equal(data.points, np.asarray(back.points)[data.file_index])
+            np.testing.assert_array_equal(data.values, np.asarray(back.point_data["f"])[data.file_index])
+        else:
+            assert not data.is_grid, name
+            np.testing.assert_array_equal(data.points, np.asarray(back.points, float))
+            np.testing.assert_array_equal(data.values, np.asarray(back.point_data["f"]))
+
+
+@pytest.mark.parametrize("name, content, message", [
+    ("cut.vti", None, "no element found"),
+    ("text.vti", b"not xml at all", "syntax error"),
+    ("text.vtk", b"hello", "Unrecognized file type"),
+    ("half.vtu", b"<VTKFile", "unclosed token"),
+])
+def test_a_damaged_vtk_file_is_one_line_and_nothing_else(tmp_path, capfd, name, content, message):
+    """A VTK file that VTK cannot read: exit 2 and one line naming the file and VTK's first
+    error; none of VTK's own log on the terminal; no output folder."""
+    if content is None:  # the first half of a good file
+        _vtk_files(tmp_path)
+        content = (tmp_path / "v.vti").read_bytes()
+        content = content[: len(content) // 2]
+    (tmp_path / name).write_bytes(content)
+    out = tmp_path / "out"
+    assert main(["reduce", str(tmp_path / name), "--fractions", "0.5", "--out", str(out)]) == 2
+    captured = capfd.readouterr()
+    lines = captured.err.strip().splitlines()
+    assert len(lines) == 1 and name in lines[0] and message in lines[0], captured.err
+    assert "0x" not in lines[0] and not out.exists()

@@ -11,6 +11,7 @@ import sys
 from dataclasses import fields
 from pathlib import Path
 
+import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -156,11 +157,19 @@ def test_import_trivsel_is_light():
     assert out.strip() == "[]"
 
 
-def test_a_command_line_reduction_does_not_import_pandas_or_pyvista(tmp_path):
-    """``trivsel reduce`` writes errors.csv and prints its table without pandas, and its
-    ``.vtu`` files with VTK's own modules, without pyvista (together about 0.7 s of every
-    command-line run that does not read a VTK file)."""
-    code = (f"import sys; from trivsel.cli import main; main(['reduce', '--function', '4', '--n', '4', "
+@pytest.mark.parametrize("source", ["function", "vti"])
+def test_a_command_line_reduction_does_not_import_pandas_or_pyvista(tmp_path, source):
+    """``trivsel reduce`` writes errors.csv and prints its table without pandas, and reads and
+    writes VTK files with VTK's own modules, without pyvista (together about 0.7 s of every
+    command-line run)."""
+    args = ["--function", "4", "--n", "4"]
+    if source == "vti":
+        pv = pytest.importorskip("pyvista")
+        img = pv.ImageData(dimensions=(5, 5, 5))
+        img.point_data["f"] = np.arange(125.0) % 7
+        img.save(tmp_path / "in.vti")
+        args = [str(tmp_path / "in.vti")]
+    code = (f"import sys; from trivsel.cli import main; main(['reduce', *{args!r}, "
             f"'--fractions', '0.5', '--out', {str(tmp_path / 'out')!r}]); "
             "print([m for m in ('pandas', 'pyvista', 'matplotlib', 'trivsel.study') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout

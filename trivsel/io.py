@@ -121,34 +121,93 @@ def _read_npz(p, array):
     return scattered(arrays["points"], v, name=name)
 
 
-def _read_vtk(p, array):
-    """VTK files through pyvista: image data is a grid (exact integer path, origin and
-    spacing kept); any other dataset gives scattered points."""
-    import pyvista as pv
+#: VTK's reader of each VTK suffix: (module of ``vtkmodules``, class)
+_VTK_READERS = {".vti": ("vtkIOXML", "vtkXMLImageDataReader"), ".vtu": ("vtkIOXML", "vtkXMLUnstructuredGridReader"),
+                ".vtp": ("vtkIOXML", "vtkXMLPolyDataReader"), ".vts": ("vtkIOXML", "vtkXMLStructuredGridReader"),
+                ".vtr": ("vtkIOXML", "vtkXMLRectilinearGridReader"), ".vtk": ("vtkIOLegacy", "vtkDataSetReader")}
 
+
+def _vtk_error(text):
+    """The first error of VTK's log ``text`` on one line, without the object's name and
+    address (``vtkXMLDataParser (0x55..): Error parsing XML ...`` -> ``Error parsing XML ...``)."""
+    lines = text.splitlines()
+    for i, line in enumerate(lines):
+        if line.startswith("ERROR") and i + 1 < len(lines):
+            msg = lines[i + 1]
+            return " ".join(msg.split("): ", 1)[-1].split())
+    return ""
+
+
+def _read_vtk_dataset(p):
+    """A VTK file read with VTK's own reader for its suffix (pyvista is not needed): the
+    dataset and its point-data arrays as ``{name: numpy array}`` (numeric arrays only).
+
+    A file that VTK cannot read raises :class:`~trivsel.exceptions.InputError` with VTK's
+    first error on one line; VTK's own messages are kept off the terminal meanwhile.
+    """
+    import importlib
+
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
+
+    p = Path(p)
+    module, cls = _VTK_READERS[_suffix(p)]
+    reader = getattr(importlib.import_module(f"vtkmodules.{module}"), cls)()
+    reader.SetFileName(str(p))
+    previous, log = vtkOutputWindow.GetInstance(), vtkStringOutputWindow()
+    verbosity = vtkLogger.GetCurrentVerbosityCutoff()
+    vtkOutputWindow.SetInstance(log)
+    vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
     try:
-        mesh = pv.read(str(p))
-    except Exception as exc:
-        raise InputError(f"cannot read {str(p)!r} with pyvista: {exc}") from None
-    col = _pick_array(mesh.point_data.keys(), array, p)
-    vals = np.asarray(mesh.point_data[col])
+        reader.Update()
+        ds = reader.GetOutputDataObject(0)  # asks the pipeline again when the read failed
+    finally:
+        vtkOutputWindow.SetInstance(previous)
+        vtkLogger.SetStderrVerbosity(verbosity)
+    error = _vtk_error(log.GetOutput())
+    if error or ds is None or ds.GetNumberOfPoints() == 0:
+        raise InputError(f"cannot read {str(p)!r} as a VTK file: {error or 'no points in it'}")
+    pd = ds.GetPointData()
+    arrays = {}
+    for i in range(pd.GetNumberOfArrays()):
+        a = pd.GetArray(i)  # None for string and other non-numeric arrays
+        if a is not None and a.GetName():
+            arrays[a.GetName()] = np.array(vtk_to_numpy(a))
+    return ds, arrays
+
+
+def _read_vtk(p, array):
+    """VTK files, read with VTK's readers: image data is a grid (exact integer path, origin
+    and spacing kept); any other dataset gives scattered points."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    ds, arrays = _read_vtk_dataset(p)
+    col = _pick_array(arrays.keys(), array, p)
+    vals = arrays[col]
     if vals.ndim != 1:
         raise InputError(f"array {col!r} in {str(p)!r} has {vals.shape[1]} components; need a scalar array")
-    if isinstance(mesh, pv.ImageData):
-        nx, ny, nz = mesh.dimensions
+    if ds.IsA("vtkImageData"):
+        nx, ny, nz = ds.GetDimensions()
         if min(nx, ny, nz) < 2:
-            raise InputError(f"image {str(p)!r} has dimensions {mesh.dimensions}: need >= 2 points per axis")
-        if np.any(np.asarray(mesh.direction_matrix) != np.eye(3)):
+            raise InputError(f"image {str(p)!r} has dimensions {(nx, ny, nz)}: need >= 2 points per axis")
+        direction = ds.GetDirectionMatrix()
+        if any(direction.GetElement(i, j) != (i == j) for i in range(3) for j in range(3)):
             raise InputError(f"image {str(p)!r} has a rotated direction matrix; not supported")
         v3 = vals.reshape((nz, ny, nx)).transpose(2, 1, 0)  # VTK order is x fastest
-        spacing = np.asarray(mesh.spacing, float)
+        spacing = np.asarray(ds.GetSpacing(), float)
         # the first point sits at origin + extent_min * spacing, not at the origin
-        origin = np.asarray(mesh.origin, float) + np.asarray(mesh.extent[0::2], float) * spacing
+        origin = np.asarray(ds.GetOrigin(), float) + np.asarray(ds.GetExtent()[0::2], float) * spacing
         data = grid_from_array(v3, origin, spacing, name=p.stem)
         i, j, k = data.ijk.T
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
-    return scattered(np.asarray(mesh.points, float), vals, name=p.stem)
+    if ds.IsA("vtkRectilinearGrid"):  # points from the three coordinate arrays, x fastest
+        x, y, z = (vtk_to_numpy(c) for c in (ds.GetXCoordinates(), ds.GetYCoordinates(), ds.GetZCoordinates()))
+        zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
+        points = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=1)
+    else:
+        points = vtk_to_numpy(ds.GetPoints().GetData())
+    return scattered(np.asarray(points, float), vals, name=p.stem)
 
 
 def _stem(p) -> str:

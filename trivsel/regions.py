@@ -563,10 +563,10 @@ def _stored_dtype(p, array):
 
         return _nrrd_type(nrrd.read_header(str(p)))
     if suffix in (".vti", ".vtk"):
-        import pyvista as pv
+        from .io import _read_vtk_dataset
 
-        mesh = pv.read(str(p))  # a second read: VTK files are the small ones
-        return np.asarray(mesh.point_data[_pick_array(mesh.point_data.keys(), array, p)]).dtype
+        _, arrays = _read_vtk_dataset(p)  # a second read: VTK files are the small ones
+        return arrays[_pick_array(arrays.keys(), array, p)].dtype
     if suffix == ".npz":
         with np.load(p) as z:
             return z[array or "values"].dtype
