@@ -389,6 +389,33 @@ def test_pvtu_and_vtm_open_as_all_pieces(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["mesh.pvtu", "mesh.vtm", "pieces"]  # no temporaries
 
 
+def test_a_damaged_or_foreign_piece_is_one_line(tmp_path):
+    """merge_pieces and write_pvtu name the piece VTK cannot read (and VTK's first error), a
+    piece without ``value`` or ``original_index``, and a piece with cells other than tetrahedra."""
+    from trivsel.pieces import merge_pieces, write_pvtu
+
+    vol, paths, n_tets = _two_pieces(tmp_path)
+    cut = tmp_path / "cut.vtu"
+    cut.write_bytes(paths[0].read_bytes()[:200])
+    for call in (lambda: merge_pieces([paths[0], cut], tmp_path / "m.vtu"),
+                 lambda: write_pvtu(tmp_path / "m.pvtu", [cut])):
+        with pytest.raises(trivsel.InputError, match=r"cannot read piece .*cut.vtu': .*XML") as info:
+            call()
+        assert "\n" not in str(info.value) and "0x" not in str(info.value)
+    grid = pv.read(paths[0])
+    grid.point_data.pop("original_index")
+    grid.save(tmp_path / "no_ids.vtu")
+    with pytest.raises(trivsel.InputError, match="no_ids.vtu' has no point array 'original_index'"):
+        merge_pieces([tmp_path / "no_ids.vtu"], tmp_path / "m.vtu")
+    hexes = pv.ImageData(dimensions=(3, 3, 3)).cast_to_unstructured_grid()
+    hexes.point_data["value"] = np.zeros(27)
+    hexes.point_data["original_index"] = np.arange(27)
+    hexes.save(tmp_path / "hexes.vtu")
+    with pytest.raises(trivsel.InputError, match="hexes.vtu' has cells other than tetrahedra"):
+        merge_pieces([tmp_path / "hexes.vtu"], tmp_path / "m.vtu")
+    assert not (tmp_path / "m.vtu").exists() and not (tmp_path / "m.pvtu").exists()
+
+
 def test_merge_dedups_shared_points_and_keeps_every_tet(tmp_path):
     from trivsel.pieces import merge_pieces, write_piece
 

@@ -50,7 +50,8 @@ from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError, one_line
 
 __all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
-           "snapshot_to_pyvista", "write_vtu", "fraction_label"]
+           "snapshot_to_pyvista", "tetra_grid", "write_vtu",
+           "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -138,12 +139,13 @@ def _vtk_error(text):
     return ""
 
 
-def _read_vtk_dataset(p):
+def _read_vtk_dataset(p, what=None):
     """A VTK file read with VTK's own reader for its suffix (pyvista is not needed): the
     dataset and its point-data arrays as ``{name: numpy array}`` (numeric arrays only).
 
     A file that VTK cannot read raises :class:`~trivsel.exceptions.InputError` with VTK's
-    first error on one line; VTK's own messages are kept off the terminal meanwhile.
+    first error on one line (``what`` names the file's role in it, e.g. ``"piece"``); VTK's
+    own messages are kept off the terminal meanwhile.
     """
     import importlib
 
@@ -166,7 +168,8 @@ def _read_vtk_dataset(p):
         vtkLogger.SetStderrVerbosity(verbosity)
     error = _vtk_error(log.GetOutput())
     if error or ds is None or ds.GetNumberOfPoints() == 0:
-        raise InputError(f"cannot read {str(p)!r} as a VTK file: {error or 'no points in it'}")
+        name = f"{what} {str(p)!r}" if what else f"{str(p)!r} as a VTK file"
+        raise InputError(f"cannot read {name}: {error or 'no points in it'}")
     pd = ds.GetPointData()
     arrays = {}
     for i in range(pd.GetNumberOfArrays()):
@@ -485,10 +488,6 @@ def snapshot_to_vtk(result, snapshot):
     ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
     and, with ``values="fit"``, ``fitted_value``.  Field data: ``fraction``.
     """
-    from vtkmodules.util.numpy_support import numpy_to_vtk
-    from vtkmodules.vtkCommonCore import vtkPoints
-    from vtkmodules.vtkCommonDataModel import VTK_TETRA, vtkCellArray, vtkUnstructuredGrid
-
     sel = np.unique(snapshot.tets)
     remap = np.full(result.data.n_points, -1, np.int64)
     remap[sel] = np.arange(len(sel))
@@ -500,6 +499,20 @@ def snapshot_to_vtk(result, snapshot):
     arrays["original_index"] = result.data.file_ids(sel)
     if result.curvature is not None:  # greedy does not compute it
         arrays["curvature"] = result.curvature[sel]
+    return tetra_grid(result.data.points[sel], remap[snapshot.tets], arrays,
+                      {"fraction": np.array([snapshot.fraction], np.float64)})
+
+
+def tetra_grid(points, tets, point_data, field_data=None):
+    """A VTK ``vtkUnstructuredGrid`` of tetrahedra (VTK_TETRA), built with VTK's own modules.
+
+    ``points`` (M, 3) are stored as float64, ``tets`` (T, 4) index them; ``point_data`` and
+    ``field_data`` map names to arrays (copied, in their own types), in order; the point array
+    ``value``, if any, is the active scalars (as pyvista makes the first array it is given).
+    """
+    from vtkmodules.util.numpy_support import numpy_to_vtk
+    from vtkmodules.vtkCommonCore import vtkPoints
+    from vtkmodules.vtkCommonDataModel import VTK_TETRA, vtkCellArray, vtkUnstructuredGrid
 
     def vtk_array(a, name):
         out = numpy_to_vtk(np.ascontiguousarray(a), deep=True)
@@ -507,18 +520,20 @@ def snapshot_to_vtk(result, snapshot):
         return out
 
     grid = vtkUnstructuredGrid()
-    points = vtkPoints()
-    points.SetData(vtk_array(np.asarray(result.data.points[sel], np.float64), "Points"))
-    grid.SetPoints(points)
-    m = len(snapshot.tets)
+    pts = vtkPoints()
+    pts.SetData(vtk_array(np.asarray(points, np.float64), "Points"))
+    grid.SetPoints(pts)
+    tets = np.asarray(tets, np.int64).reshape(-1, 4)
     cells = vtkCellArray()
-    cells.SetData(numpy_to_vtk(np.arange(0, 4 * m + 1, 4, dtype=np.int64), deep=True),
-                  numpy_to_vtk(np.ascontiguousarray(remap[snapshot.tets].ravel()), deep=True))
+    cells.SetData(numpy_to_vtk(np.arange(0, 4 * len(tets) + 1, 4, dtype=np.int64), deep=True),
+                  numpy_to_vtk(np.ascontiguousarray(tets.ravel()), deep=True))
     grid.SetCells(VTK_TETRA, cells)
-    for name, a in arrays.items():
+    for name, a in point_data.items():
         grid.GetPointData().AddArray(vtk_array(a, name))
-    grid.GetPointData().SetActiveScalars("value")
-    grid.GetFieldData().AddArray(vtk_array(np.array([snapshot.fraction], np.float64), "fraction"))
+    if "value" in point_data:
+        grid.GetPointData().SetActiveScalars("value")
+    for name, a in (field_data or {}).items():
+        grid.GetFieldData().AddArray(vtk_array(a, name))
     return grid
 
 

@@ -22,7 +22,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .exceptions import InputError, one_line
+from .exceptions import InputError
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -51,7 +51,7 @@ def _atomic_write(path, write, overwrite):
 
 
 def _piece_grid(points, tets, values, original_index):
-    import pyvista as pv
+    from .io import tetra_grid
 
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
@@ -68,11 +68,7 @@ def _piece_grid(points, tets, values, original_index):
         raise InputError(f"values must be {m} real numbers (one per point), got {v.dtype} of shape {v.shape}")
     if ids.shape != (m,) or ids.dtype.kind not in "iu":
         raise InputError(f"original_index must be {m} integers (one per point), got {ids.dtype} of shape {ids.shape}")
-    cells = np.hstack([np.full((len(t), 1), 4, np.int64), t.astype(np.int64)]).ravel()
-    grid = pv.UnstructuredGrid(cells, np.full(len(t), pv.CellType.TETRA, np.uint8), p)
-    grid.point_data["value"] = v.astype(float)
-    grid.point_data["original_index"] = ids.astype(np.int64)
-    return grid
+    return tetra_grid(p, t, {"value": v.astype(float), "original_index": ids.astype(np.int64)})
 
 
 def write_piece(path, points, tets, values, original_index, *, overwrite: bool = False) -> Path:
@@ -93,8 +89,10 @@ def write_piece(path, points, tets, values, original_index, *, overwrite: bool =
     overwrite : bool
         Replace an existing file (refused otherwise).
     """
+    from .io import write_vtu
+
     grid = _piece_grid(points, tets, values, original_index)
-    return _atomic_write(path, lambda tmp: grid.save(tmp), overwrite)
+    return _atomic_write(path, lambda tmp: write_vtu(grid, tmp), overwrite)
 
 
 def _relative(piece, folder):
@@ -136,23 +134,20 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
     The point arrays and the points' type are declared from the first piece; every piece
     must have the same (as :func:`write_piece` writes them).
     """
-    import pyvista as pv
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    from .io import _read_vtk_dataset
 
     paths = _existing(piece_paths)
-    try:
-        first = pv.read(str(paths[0]))
-    except Exception as exc:
-        raise InputError(f"cannot read piece {str(paths[0])!r}: {one_line(exc)}") from None
+    first, arrays = _read_vtk_dataset(paths[0], "piece")
     root = _vtk_file("PUnstructuredGrid")
     grid = ET.SubElement(root, "PUnstructuredGrid", GhostLevel="0")
-    names = list(first.point_data.keys())
-    point_data = ET.SubElement(grid, "PPointData", **({"Scalars": "value"} if "value" in names else {}))
-    for name in names:
-        a = np.asarray(first.point_data[name])
+    point_data = ET.SubElement(grid, "PPointData", **({"Scalars": "value"} if "value" in arrays else {}))
+    for name, a in arrays.items():
         ET.SubElement(point_data, "PDataArray", type=_vtk_type(a.dtype, name), Name=name,
                       NumberOfComponents=str(1 if a.ndim == 1 else a.shape[1]))
     pts = ET.SubElement(grid, "PPoints")
-    ET.SubElement(pts, "PDataArray", type=_vtk_type(np.asarray(first.points).dtype, "Points"),
+    ET.SubElement(pts, "PDataArray", type=_vtk_type(vtk_to_numpy(first.GetPoints().GetData()).dtype, "Points"),
                   NumberOfComponents="3")
     folder = Path(path).parent
     for p in paths:
@@ -194,26 +189,26 @@ def merge_pieces(piece_paths, out_vtu, *, overwrite: bool = False) -> Path:
         with cells other than tetrahedra, or a point that two pieces give different
         coordinates or values.
     """
-    import pyvista as pv
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+    from vtkmodules.vtkCommonDataModel import VTK_TETRA
+
+    from .io import _read_vtk_dataset
 
     paths = _existing(piece_paths)
     points, values, ids, tets = [], [], [], []
     offset = 0
     for p in paths:
-        try:
-            g = pv.read(str(p))
-            v, i = np.asarray(g.point_data["value"]), np.asarray(g.point_data["original_index"])
-        except KeyError as exc:
-            raise InputError(f"piece {str(p)!r} has no point array {exc}") from None
-        except Exception as exc:
-            raise InputError(f"cannot read piece {str(p)!r}: {one_line(exc)}") from None
-        if g.n_cells and not np.all(np.asarray(g.celltypes) == pv.CellType.TETRA):
+        g, arrays = _read_vtk_dataset(p, "piece")
+        for name in ("value", "original_index"):
+            if name not in arrays:
+                raise InputError(f"piece {str(p)!r} has no point array {name!r}")
+        if g.GetNumberOfCells() and not (g.IsHomogeneous() and g.GetCellType(0) == VTK_TETRA):
             raise InputError(f"piece {str(p)!r} has cells other than tetrahedra")
-        points.append(np.asarray(g.points, float))
-        values.append(v.astype(float))
-        ids.append(i.astype(np.int64))
-        tets.append(np.asarray(g.cells, np.int64).reshape(-1, 5)[:, 1:] + offset)
-        offset += g.n_points
+        points.append(np.asarray(vtk_to_numpy(g.GetPoints().GetData()), float))
+        values.append(arrays["value"].astype(float))
+        ids.append(arrays["original_index"].astype(np.int64))
+        tets.append(np.asarray(vtk_to_numpy(g.GetCells().GetConnectivityArray()), np.int64).reshape(-1, 4) + offset)
+        offset += g.GetNumberOfPoints()
     points, values, ids = np.concatenate(points), np.concatenate(values), np.concatenate(ids)
     unique, first, inverse = np.unique(ids, return_index=True, return_inverse=True)
     # a shared point must be the same point in every piece
