@@ -182,8 +182,6 @@ def _read_vtk_dataset(p, what=None):
 def _read_vtk(p, array):
     """VTK files, read with VTK's readers: image data is a grid (exact integer path, origin
     and spacing kept); any other dataset gives scattered points."""
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-
     ds, arrays = _read_vtk_dataset(p)
     col = _pick_array(arrays.keys(), array, p)
     vals = arrays[col]
@@ -204,13 +202,19 @@ def _read_vtk(p, array):
         i, j, k = data.ijk.T
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
-    if ds.IsA("vtkRectilinearGrid"):  # points from the three coordinate arrays, x fastest
+    return scattered(np.asarray(_vtk_points(ds), float), vals, name=p.stem)
+
+
+def _vtk_points(ds):
+    """The points of a VTK dataset that is not image data, as a numpy array in VTK's point
+    order and stored type (a rectilinear grid's from its three coordinate arrays, x fastest)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    if ds.IsA("vtkRectilinearGrid"):
         x, y, z = (vtk_to_numpy(c) for c in (ds.GetXCoordinates(), ds.GetYCoordinates(), ds.GetZCoordinates()))
         zz, yy, xx = np.meshgrid(z, y, x, indexing="ij")
-        points = np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=1)
-    else:
-        points = vtk_to_numpy(ds.GetPoints().GetData())
-    return scattered(np.asarray(points, float), vals, name=p.stem)
+        return np.stack([xx.ravel(), yy.ravel(), zz.ravel()], axis=1)
+    return vtk_to_numpy(ds.GetPoints().GetData())
 
 
 def _stem(p) -> str:

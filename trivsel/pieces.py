@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .exceptions import InputError
+from .io import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -51,8 +52,6 @@ def _atomic_write(path, write, overwrite):
 
 
 def _piece_grid(points, tets, values, original_index):
-    from .io import tetra_grid
-
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise InputError(f"points must be a finite (M, 3) array, got shape {p.shape}")
@@ -89,8 +88,6 @@ def write_piece(path, points, tets, values, original_index, *, overwrite: bool =
     overwrite : bool
         Replace an existing file (refused otherwise).
     """
-    from .io import write_vtu
-
     grid = _piece_grid(points, tets, values, original_index)
     return _atomic_write(path, lambda tmp: write_vtu(grid, tmp), overwrite)
 
@@ -134,10 +131,6 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
     The point arrays and the points' type are declared from the first piece; every piece
     must have the same (as :func:`write_piece` writes them).
     """
-    from vtkmodules.util.numpy_support import vtk_to_numpy
-
-    from .io import _read_vtk_dataset
-
     paths = _existing(piece_paths)
     first, arrays = _read_vtk_dataset(paths[0], "piece")
     root = _vtk_file("PUnstructuredGrid")
@@ -147,7 +140,7 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
         ET.SubElement(point_data, "PDataArray", type=_vtk_type(a.dtype, name), Name=name,
                       NumberOfComponents=str(1 if a.ndim == 1 else a.shape[1]))
     pts = ET.SubElement(grid, "PPoints")
-    ET.SubElement(pts, "PDataArray", type=_vtk_type(vtk_to_numpy(first.GetPoints().GetData()).dtype, "Points"),
+    ET.SubElement(pts, "PDataArray", type=_vtk_type(_vtk_points(first).dtype, "Points"),
                   NumberOfComponents="3")
     folder = Path(path).parent
     for p in paths:
@@ -192,8 +185,6 @@ def merge_pieces(piece_paths, out_vtu, *, overwrite: bool = False) -> Path:
     from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkCommonDataModel import VTK_TETRA
 
-    from .io import _read_vtk_dataset
-
     paths = _existing(piece_paths)
     points, values, ids, tets = [], [], [], []
     offset = 0
@@ -204,7 +195,7 @@ def merge_pieces(piece_paths, out_vtu, *, overwrite: bool = False) -> Path:
                 raise InputError(f"piece {str(p)!r} has no point array {name!r}")
         if g.GetNumberOfCells() and not (g.IsHomogeneous() and g.GetCellType(0) == VTK_TETRA):
             raise InputError(f"piece {str(p)!r} has cells other than tetrahedra")
-        points.append(np.asarray(vtk_to_numpy(g.GetPoints().GetData()), float))
+        points.append(np.asarray(_vtk_points(g), float))
         values.append(arrays["value"].astype(float))
         ids.append(arrays["original_index"].astype(np.int64))
         tets.append(np.asarray(vtk_to_numpy(g.GetCells().GetConnectivityArray()), np.int64).reshape(-1, 4) + offset)
