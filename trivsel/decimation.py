@@ -61,6 +61,8 @@ INF = np.inf
 # lock bits of a point: bit a (a = 0, 1, 2) set when the point is on the box's low or high
 # face normal to axis a; LOCK_ALL when it may not move at all
 LOCK_ALL = 8
+#: Corners (4 per tet) below which the mesh's indices are int32 (above, int64; the same results)
+INT32_CORNERS = 2**31
 #: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
 STAR_CAPACITY = 1 << 16
 
@@ -94,10 +96,13 @@ class State(NamedTuple):
 
         P[p]          integer grid coordinates of point p
         f[p]          its value
-        T[t]          the 4 vertices of tet t (orient3d > 0) while alive[t]
+        T[t, :4]      the 4 vertices of tet t (orient3d > 0) while alive[t]
         corner c = 4 t + s is slot s of tet t; each vertex's corners form a doubly linked
-        list: vhead[v] -> cnext[c] -> ... (cprev back), -1 at the ends
+        list: vhead[v] -> next ... (cprev back), -1 at the ends; the next corner after c
+        is T[t, 4 + s], beside the tet's vertices, since walking a vertex's list reads
+        both (one cache line, not two)
         phead[t]      first point in the bucket of tet t; pnext[p] the next; ptet[p] the tet
+        (indices into the mesh are int32 while the corners fit, see ``INT32_CORNERS``)
         res[p]        f - L at p (0 at vertices); isv[p] whether p is a vertex
         dirty[v]      v is queued with a cost from before its tets last changed (lazy)
         lock[p]       the box constraint (bits above)
@@ -116,7 +121,6 @@ class State(NamedTuple):
     T: np.ndarray
     alive: np.ndarray
     vhead: np.ndarray
-    cnext: np.ndarray
     cprev: np.ndarray
     phead: np.ndarray
     pnext: np.ndarray
@@ -259,7 +263,7 @@ def _link(S, v, c):
     """Put corner c at the head of vertex v's list."""
     h = S.vhead[v]
     S.deg[v] += 1
-    S.cnext[c] = h
+    S.T[c >> 2, 4 + (c & 3)] = h
     S.cprev[c] = -1
     if h >= 0:
         S.cprev[h] = c
@@ -269,10 +273,10 @@ def _link(S, v, c):
 @njit(cache=True, _nrt=False)
 def _unlink(S, v, c):
     """Take corner c out of vertex v's list."""
-    p, q = S.cprev[c], S.cnext[c]
+    p, q = S.cprev[c], S.T[c >> 2, 4 + (c & 3)]
     S.deg[v] -= 1
     if p >= 0:
-        S.cnext[p] = q
+        S.T[p >> 2, 4 + (p & 3)] = q
     else:
         S.vhead[v] = q
     if q >= 0:
@@ -290,7 +294,7 @@ def _star(S, v, out):
             return -1
         out[n] = c
         n += 1
-        c = S.cnext[c]
+        c = S.T[c >> 2, 4 + (c & 3)]
     return n
 
 
@@ -622,6 +626,16 @@ def _weights(S):
     return verts, w
 
 
+def _aligned_empty(shape, dtype, line=64):
+    """An empty C-order array whose data starts on a cache-line boundary, so that rows of a
+    size that divides ``line`` never straddle two lines."""
+    dtype = np.dtype(dtype)
+    nbytes = int(np.prod(shape)) * dtype.itemsize
+    buf = np.empty(nbytes + line, np.uint8)
+    off = -buf.ctypes.data % line
+    return buf[off:off + nbytes].view(dtype).reshape(shape)
+
+
 class Decimation:
     """A decimation in progress on grid data (integer coordinates ``ijk``, C-order points).
 
@@ -637,8 +651,16 @@ class Decimation:
     def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False):
         P = np.ascontiguousarray(ijk, np.int64)
         N = P.shape[0]
-        T = grid_tetrahedra(shape)
-        M = T.shape[0]
+        Tg = grid_tetrahedra(shape)
+        M = Tg.shape[0]
+        # indices as int32 while they fit (and counts and lock bits smaller still): the queue
+        # visits the volume in cost order, so a collapse reads these arrays at random, and
+        # the smaller they are the more of them stays in cache
+        ix = np.int32 if 4 * M < INT32_CORNERS else np.int64
+        T = _aligned_empty((M, 8), ix)
+        T[:, :4] = Tg  # the vertices, then the links
+        T[:, 4:] = -1
+        del Tg
         hi = np.asarray(shape, np.int64) - 1
         on = (P == 0) | (P == hi)
         lk = (on[:, 0] * 1 + on[:, 1] * 2 + on[:, 2] * 4).astype(np.int64)
@@ -647,12 +669,12 @@ class Decimation:
             lk[on.any(axis=1)] |= LOCK_ALL
         self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
         self.S = State(P=P, f=np.ascontiguousarray(values, np.float64), T=T, alive=np.ones(M, np.bool_),
-                       vhead=np.full(N, -1, np.int64), cnext=np.full(4 * M, -1, np.int64),
-                       cprev=np.full(4 * M, -1, np.int64), phead=np.full(M, -1, np.int64),
-                       pnext=np.full(N, -1, np.int64), ptet=np.full(N, -1, np.int64), res=np.zeros(N),
-                       isv=np.ones(N, np.bool_), lock=lk, hv=np.zeros(N, np.int64), hpos=np.full(N, -1, np.int64),
-                       hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, np.int64), hdeg=np.zeros(N, np.int64),
-                       deg=np.zeros(N, np.int64), mark=np.zeros(N, np.int64),
+                       vhead=np.full(N, -1, ix),
+                       cprev=np.full(4 * M, -1, ix), phead=np.full(M, -1, ix),
+                       pnext=np.full(N, -1, ix), ptet=np.full(N, -1, ix), res=np.zeros(N),
+                       isv=np.ones(N, np.bool_), lock=lk.astype(np.int8), hv=np.zeros(N, ix), hpos=np.full(N, -1, ix),
+                       hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix), hdeg=np.zeros(N, np.int32),
+                       deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                        removed=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                        Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
                        kw=np.zeros(STAR_CAPACITY, np.bool_), stamp=np.zeros(1, np.int64),
@@ -693,7 +715,7 @@ class Decimation:
         return np.flatnonzero(self.S.isv)
 
     def tetrahedra(self):
-        return self.S.T[self.S.alive].copy()
+        return self.S.T[self.S.alive, :4].astype(np.int64)
 
     def residuals(self):
         return self.S.res.copy()
