@@ -156,6 +156,26 @@ def test_int64_indices_give_the_same_run(monkeypatch):
             assert np.array_equal(a, b)
 
 
+def test_a_full_corner_pool_is_compacted_and_the_run_is_the_same(monkeypatch):
+    """With no room in the corner pool, the first segment that must grow makes the run compact
+    the pool; the run is the same to the bit as with room."""
+    import trivsel.decimation as dm
+
+    data = grid_from_array(slab_volume())
+    runs = []
+    for room in (dm.POOL_ROOM, 1.0):
+        monkeypatch.setattr(dm, "POOL_ROOM", room)
+        dec = Decimation(data.ijk, data.shape, data.values, lazy=True)
+        dec.run(60)
+        dec.lazy = False
+        dec.run(9)
+        check_tetrahedra(data.shape, dec.tetrahedra())
+        runs.append((dec.compactions, dec.removed(), dec.residuals(), dec.tetrahedra()))
+    assert runs[0][0] == 0 and runs[1][0] >= 1
+    for a, b in zip(runs[0][1:], runs[1][1:]):
+        assert np.array_equal(a, b)
+
+
 def test_the_strict_queue_is_the_plain_greedy_path():
     """``lazy_queue=False`` collapses in the strict greedy order whatever the stop: the same path
     as exact updates all along, and every snapshot of one run lies on it."""

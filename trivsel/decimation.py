@@ -63,6 +63,9 @@ INF = np.inf
 LOCK_ALL = 8
 #: Corners (4 per tet) below which the mesh's indices are int32 (above, int64; the same results)
 INT32_CORNERS = 2**31
+#: Room in the corner pool, over the corners' segments (each half its count again, plus 4);
+#: when a segment must move and the pool is full, it is compacted (``Decimation._compact``)
+POOL_ROOM = 1.5
 #: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
 STAR_CAPACITY = 1 << 16
 
@@ -96,11 +99,10 @@ class State(NamedTuple):
 
         P[p]          integer grid coordinates of point p
         f[p]          its value
-        T[t, :4]      the 4 vertices of tet t (orient3d > 0) while alive[t]
-        corner c = 4 t + s is slot s of tet t; each vertex's corners form a doubly linked
-        list: vhead[v] -> next ... (cprev back), -1 at the ends; the next corner after c
-        is T[t, 4 + s], beside the tet's vertices, since walking a vertex's list reads
-        both (one cache line, not two)
+        T[t]          the 4 vertices of tet t (orient3d > 0) while alive[t]
+        corner c = 4 t + s is slot s of tet t; the corners of vertex v are the segment
+        cpool[vstart[v]:vstart[v] + deg[v]] (capacity vcap[v]), newest last: reading a
+        star is one contiguous read, not a chain of cache misses (see ``_link``)
         phead[t]      first point in the bucket of tet t; pnext[p] the next; ptet[p] the tet
         (indices into the mesh are int32 while the corners fit, see ``INT32_CORNERS``)
         res[p]        f - L at p (0 at vertices); isv[p] whether p is a vertex
@@ -109,7 +111,7 @@ class State(NamedTuple):
         heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
                       queued); htgt[v] the target of v's cheapest collapse
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
-                      the max criterion, lazy updates]
+                      the max criterion, lazy updates, the corner pool's top]
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
                       planes, kw whether each holds the target being tried; pbuf
                       the points of the star's buckets, phome the star index of each;
@@ -120,8 +122,9 @@ class State(NamedTuple):
     f: np.ndarray
     T: np.ndarray
     alive: np.ndarray
-    vhead: np.ndarray
-    cprev: np.ndarray
+    cpool: np.ndarray
+    vstart: np.ndarray
+    vcap: np.ndarray
     phead: np.ndarray
     pnext: np.ndarray
     ptet: np.ndarray
@@ -150,7 +153,7 @@ class State(NamedTuple):
     ctr: np.ndarray
 
 
-C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY = 0, 1, 2, 3, 4
+C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP = 0, 1, 2, 3, 4, 5
 
 # ----------------------------------------------------------------------------- geometry
 
@@ -260,41 +263,48 @@ def _locate_star(P, f, Q, sc, kw, n, w, p, hint):
 
 @njit(cache=True, _nrt=False)
 def _link(S, v, c):
-    """Put corner c at the head of vertex v's list."""
-    h = S.vhead[v]
-    S.deg[v] += 1
-    S.T[c >> 2, 4 + (c & 3)] = h
-    S.cprev[c] = -1
-    if h >= 0:
-        S.cprev[h] = c
-    S.vhead[v] = c
+    """Add corner c to vertex v's corners, as the newest.  A full segment moves to the top of
+    the pool with twice the room (``_run`` makes sure the pool has it)::
+
+        cpool  [ v: c9 c4 c1 . . | u: c7 c2 . | ... | top ]   c1 newest of v
+    """
+    d = S.deg[v]
+    if d == S.vcap[v]:
+        top = S.ctr[C_PTOP]
+        cap = max(2 * d, 8)
+        a = S.vstart[v]
+        for k in range(d):
+            S.cpool[top + k] = S.cpool[a + k]
+        S.vstart[v] = top
+        S.vcap[v] = cap
+        S.ctr[C_PTOP] = top + cap
+    S.cpool[S.vstart[v] + d] = c
+    S.deg[v] = d + 1
 
 
 @njit(cache=True, _nrt=False)
 def _unlink(S, v, c):
-    """Take corner c out of vertex v's list."""
-    p, q = S.cprev[c], S.T[c >> 2, 4 + (c & 3)]
-    S.deg[v] -= 1
-    if p >= 0:
-        S.T[p >> 2, 4 + (p & 3)] = q
-    else:
-        S.vhead[v] = q
-    if q >= 0:
-        S.cprev[q] = p
+    """Take corner c out of vertex v's corners, the others keeping their order."""
+    a = S.vstart[v]
+    d = S.deg[v]
+    k = 0
+    while S.cpool[a + k] != c:
+        k += 1
+    for k in range(k, d - 1):
+        S.cpool[a + k] = S.cpool[a + k + 1]
+    S.deg[v] = d - 1
 
 
 @njit(cache=True, _nrt=False)
 def _star(S, v, out):
-    """The corners of vertex v (tet ``c >> 2``, slot ``c & 3``) into ``out``; their count,
-    or -1 if there are more than ``out`` holds (v then does not move)."""
-    n = 0
-    c = S.vhead[v]
-    while c >= 0:
-        if n == out.shape[0]:
-            return -1
-        out[n] = c
-        n += 1
-        c = S.T[c >> 2, 4 + (c & 3)]
+    """The corners of vertex v (tet ``c >> 2``, slot ``c & 3``), newest first, into ``out``;
+    their count, or -1 if there are more than ``out`` holds (v then does not move)."""
+    n = S.deg[v]
+    if n > out.shape[0]:
+        return -1
+    a = S.vstart[v] + n - 1
+    for k in range(n):
+        out[k] = S.cpool[a - k]
     return n
 
 
@@ -425,7 +435,6 @@ def _collapse(S, v, w, sc, n):
         else:
             T[t, c & 3] = w
             _link(S, w, c)
-    S.vhead[v] = -1
     S.deg[v] = 0
     S.isv[v] = False
     for k in range(-1, m):
@@ -542,6 +551,9 @@ def _run(S, stop_count, sse_max, tol_inf):
         w = S.htgt[v]
         if S.acc[0] + S.hsse[v] > sse_max:
             return 2
+        if S.ctr[C_PTOP] + 4 * (S.deg[w] + S.deg[v]) + 16 > S.cpool.shape[0]:
+            # w's corners may move (twice, from a small segment) and the pool lacks the room
+            return 3
         n = _star(S, v, sc)
         # the vertices whose tets change: their collapses are evaluated again
         S.stamp[0] += 1
@@ -657,10 +669,12 @@ class Decimation:
         # visits the volume in cost order, so a collapse reads these arrays at random, and
         # the smaller they are the more of them stays in cache
         ix = np.int32 if 4 * M < INT32_CORNERS else np.int64
-        T = _aligned_empty((M, 8), ix)
-        T[:, :4] = Tg  # the vertices, then the links
-        T[:, 4:] = -1
+        T = _aligned_empty((M, 4), ix)
+        T[...] = Tg
+        deg = np.bincount(Tg.ravel(), minlength=N)
         del Tg
+        cap = deg + deg // 2 + 4
+        vstart = np.cumsum(cap) - cap
         hi = np.asarray(shape, np.int64) - 1
         on = (P == 0) | (P == hi)
         lk = (on[:, 0] * 1 + on[:, 1] * 2 + on[:, 2] * 4).astype(np.int64)
@@ -669,8 +683,8 @@ class Decimation:
             lk[on.any(axis=1)] |= LOCK_ALL
         self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
         self.S = State(P=P, f=np.ascontiguousarray(values, np.float64), T=T, alive=np.ones(M, np.bool_),
-                       vhead=np.full(N, -1, ix),
-                       cprev=np.full(4 * M, -1, ix), phead=np.full(M, -1, ix),
+                       cpool=np.full(int(cap.sum() * POOL_ROOM), -1, ix), vstart=vstart, vcap=cap.astype(np.int32),
+                       phead=np.full(M, -1, ix),
                        pnext=np.full(N, -1, ix), ptet=np.full(N, -1, ix), res=np.zeros(N),
                        isv=np.ones(N, np.bool_), lock=lk.astype(np.int8), hv=np.zeros(N, ix), hpos=np.full(N, -1, ix),
                        hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix), hdeg=np.zeros(N, np.int32),
@@ -679,7 +693,8 @@ class Decimation:
                        Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
                        kw=np.zeros(STAR_CAPACITY, np.bool_), stamp=np.zeros(1, np.int64),
                        pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                       ctr=np.array([N, 0, 0, key == "max", bool(lazy)], np.int64))
+                       ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum()], np.int64))
+        self.compactions = 0
         _init(self.S, self.tol_inf)
 
     @property
@@ -705,7 +720,29 @@ class Decimation:
     def run(self, count, sse_max=INF):
         """Collapse to ``count`` vertices; returns 0 (reached), 1 (no valid collapse left)
         or 2 (the next collapse would exceed ``sse_max``)."""
-        return int(_run(self.S, int(count), float(sse_max), self.tol_inf))
+        while True:
+            code = int(_run(self.S, int(count), float(sse_max), self.tol_inf))
+            if code != 3:
+                return code
+            self._compact()
+
+    def _compact(self):
+        """Copy every vertex's corners, in order, into a new pool, each segment with half its
+        count again as room, and as much room above the segments as they take."""
+        S = self.S
+        v = np.flatnonzero(S.deg > 0)
+        d = S.deg[v].astype(np.int64)
+        cap = d + d // 2 + 4
+        start = np.cumsum(cap) - cap
+        pool = np.full(int(cap.sum() * max(POOL_ROOM, 2.0)), -1, S.cpool.dtype)
+        k = np.arange(d.sum()) - np.repeat(np.cumsum(d) - d, d)
+        pool[np.repeat(start, d) + k] = S.cpool[np.repeat(S.vstart[v], d) + k]
+        S.vstart[v] = start
+        S.vcap[:] = 0
+        S.vcap[v] = cap
+        S.ctr[C_PTOP] = cap.sum()
+        self.S = S._replace(cpool=pool)
+        self.compactions += 1
 
     def removed(self):
         """The removed points, in order of removal."""
@@ -715,7 +752,7 @@ class Decimation:
         return np.flatnonzero(self.S.isv)
 
     def tetrahedra(self):
-        return self.S.T[self.S.alive, :4].astype(np.int64)
+        return self.S.T[self.S.alive].astype(np.int64)
 
     def residuals(self):
         return self.S.res.copy()
