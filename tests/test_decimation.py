@@ -176,6 +176,25 @@ def test_a_full_corner_pool_is_compacted_and_the_run_is_the_same(monkeypatch):
         assert np.array_equal(a, b)
 
 
+@pytest.mark.parametrize("shape", [(3, 3, 3), (4, 3, 2), (5, 5, 5)])
+def test_a_tiny_mesh_with_no_pool_room_runs_to_its_end(monkeypatch, shape):
+    """Near the end of a small grid a star is most of the mesh, so a collapse asks for more room
+    than the corners take: a compaction gives it, and the run ends as with room."""
+    import trivsel.decimation as dm
+
+    values = np.random.default_rng(1).normal(size=shape)
+    data = grid_from_array(values)
+    ends = []
+    for room in (dm.POOL_ROOM, 1.0):
+        monkeypatch.setattr(dm, "POOL_ROOM", room)
+        dec = Decimation(data.ijk, data.shape, data.values)
+        dec.run(8)
+        check_tetrahedra(data.shape, dec.tetrahedra())
+        ends.append((dec.removed(), dec.tetrahedra(), dec.compactions))
+    assert np.array_equal(ends[0][0], ends[1][0]) and np.array_equal(ends[0][1], ends[1][1])
+    assert ends[1][2] <= 3
+
+
 def test_the_strict_queue_is_the_plain_greedy_path():
     """``lazy_queue=False`` collapses in the strict greedy order whatever the stop: the same path
     as exact updates all along, and every snapshot of one run lies on it."""

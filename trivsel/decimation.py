@@ -728,13 +728,15 @@ class Decimation:
 
     def _compact(self):
         """Copy every vertex's corners, in order, into a new pool, each segment with half its
-        count again as room, and as much room above the segments as they take."""
+        count again as room, and above the segments as much room as they take, and at least
+        what ``_run`` asks for any collapse (so that it never asks twice in a row)."""
         S = self.S
         v = np.flatnonzero(S.deg > 0)
         d = S.deg[v].astype(np.int64)
         cap = d + d // 2 + 4
         start = np.cumsum(cap) - cap
-        pool = np.full(int(cap.sum() * max(POOL_ROOM, 2.0)), -1, S.cpool.dtype)
+        room = max(int(cap.sum() * (max(POOL_ROOM, 2.0) - 1.0)), 8 * int(d.max()) + 16)
+        pool = np.full(int(cap.sum()) + room, -1, S.cpool.dtype)
         k = np.arange(d.sum()) - np.repeat(np.cumsum(d) - d, d)
         pool[np.repeat(start, d) + k] = S.cpool[np.repeat(S.vstart[v], d) + k]
         S.vstart[v] = start
