@@ -63,7 +63,7 @@ INF = np.inf
 LOCK_ALL = 8
 #: Corners (4 per tet) below which the mesh's indices are int32 (above, int64; the same results)
 INT32_CORNERS = 2**31
-#: Room in the corner pool, over the corners' segments (each half its count again, plus 4);
+#: Room in the corner pool, over the corners' segments (``_segments``);
 #: when a segment must move and the pool is full, it is compacted (``Decimation._compact``)
 POOL_ROOM = 1.5
 #: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
@@ -638,6 +638,13 @@ def _weights(S):
     return verts, w
 
 
+def _segments(deg):
+    """Capacities and starts of consecutive corner segments for vertices of degrees ``deg``:
+    each with half its count again as room, plus 4."""
+    cap = deg + deg // 2 + 4
+    return cap, np.cumsum(cap) - cap
+
+
 def _aligned_empty(shape, dtype, line=64):
     """An empty C-order array whose data starts on a cache-line boundary, so that rows of a
     size that divides ``line`` never straddle two lines."""
@@ -673,8 +680,7 @@ class Decimation:
         T[...] = Tg
         deg = np.bincount(Tg.ravel(), minlength=N)
         del Tg
-        cap = deg + deg // 2 + 4
-        vstart = np.cumsum(cap) - cap
+        cap, vstart = _segments(deg)
         hi = np.asarray(shape, np.int64) - 1
         on = (P == 0) | (P == hi)
         lk = (on[:, 0] * 1 + on[:, 1] * 2 + on[:, 2] * 4).astype(np.int64)
@@ -733,8 +739,7 @@ class Decimation:
         S = self.S
         v = np.flatnonzero(S.deg > 0)
         d = S.deg[v].astype(np.int64)
-        cap = d + d // 2 + 4
-        start = np.cumsum(cap) - cap
+        cap, start = _segments(d)
         room = max(int(cap.sum() * (max(POOL_ROOM, 2.0) - 1.0)), 8 * int(d.max()) + 16)
         pool = np.full(int(cap.sum()) + room, -1, S.cpool.dtype)
         k = np.arange(d.sum()) - np.repeat(np.cumsum(d) - d, d)
