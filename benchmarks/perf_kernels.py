@@ -4,6 +4,8 @@
     python benchmarks/perf_kernels.py --volume icbm152 --fraction 0.05
     python benchmarks/perf_kernels.py --method greedy --n 64      # f4 on 65^3 to 10 %
 
+The run uses numba's just-in-time kernels (``TRIVSEL_AOT=0``: the same functions and LLVM IR
+as the ahead-of-time module a decimation loads by default, see trivsel/aot.py).
 numba's cached code has no symbols for perf, so the run compiles its kernels afresh into a
 temporary cache, records the address of every function in every compiled library of trivsel
 (numba internals: a library's ``_final_module`` and ``_get_compiled_object``, numba 0.68), and
@@ -62,7 +64,7 @@ print(f"{method} on {source} to {fraction:g}: {time.perf_counter() - t0:.2f} s (
 
 
 def short(name):
-    """``trivsel.decimation._best`` from numba's mangled name (``_ZN7trivsel10decimation5_bestB2v4...``)."""
+    """``trivsel.decimation_kernels._best`` from numba's mangled name (``_ZN7trivsel18decimation_kernels5_best...``)."""
     parts, i = [], 3 if name.startswith("_ZN") else 0
     while i < len(name) and name[i].isdigit():
         j = i
@@ -84,7 +86,7 @@ def main(argv=None):
     a = ap.parse_args(argv)
     source = a.volume if a.method == "decimate" else str(a.n)
     with tempfile.TemporaryDirectory() as tmp:
-        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"))
+        env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"), TRIVSEL_AOT="0")
         data = Path(tmp) / "perf.data"
         subprocess.run(["perf", "record", "-q", "-o", str(data), sys.executable, "-c", WORKLOAD, a.method, source,
                         str(a.fraction), tmp], env=env, check=True)

@@ -15,7 +15,8 @@ import trivsel
 from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import grid_from_array
-from trivsel.decimation import INF, Decimation, _best, grid_tetrahedra, reduce_by_collapse
+from trivsel.decimation import INF, Decimation, grid_tetrahedra, reduce_by_collapse
+from trivsel.decimation_kernels import _best
 
 
 def brute_force_residuals(ijk, values, tets):

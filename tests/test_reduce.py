@@ -313,39 +313,6 @@ def test_compile_kernels_covers_what_a_reduction_compiles(tmp_path):
     assert {"swap", "run_insertions", "run_greedy"} <= set(warm["loaded"]) <= entries
 
 
-_COMPILE_THEN_DECIMATE = """
-import json
-import numba
-import trivsel
-from trivsel import decimation, mesh, predicates
-kernels = [f for m in (decimation, predicates) for f in vars(m).values()
-           if isinstance(f, numba.core.registry.CPUDispatcher)]
-def misses():
-    return sum(sum(f.stats.cache_misses.values()) for f in kernels)
-mesh.compile_kernels("decimate", 0)
-before = misses()
-for lazy in (True, False):
-    for criterion in ("sse", "max"):
-        trivsel.reduce(4, n=8, fractions=[0.05, 0.3], method="decimate", lazy_queue=lazy, criterion=criterion,
-                       values=["data", "fit"])
-print(json.dumps({"compiled": before, "then": misses() - before}))
-"""
-
-
-@pytest.mark.slow
-def test_compile_kernels_covers_what_a_decimation_compiles(tmp_path):
-    """`trivsel compile` compiles every kernel a decimation calls, the lazy queue's included:
-    with an empty numba cache, after it, decimations with lazy and exact updates and both
-    criteria compile nothing more."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
-    p = subprocess.run([sys.executable, "-c", _COMPILE_THEN_DECIMATE], capture_output=True,
-                       text=True, timeout=900, env=env)
-    assert p.returncode == 0, p.stderr
-    out = json.loads(p.stdout)
-    assert out["compiled"] >= 4  # the cache really was empty
-    assert out["then"] == 0
-
-
 def test_compile_kernels_rejects_bad_arguments(capsys):
     from trivsel.cli import main
     from trivsel.mesh import compile_kernels

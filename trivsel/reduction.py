@@ -21,7 +21,6 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
-from . import mesh as _mesh
 from .data import PointData, sample_grid
 from .functions import resolve_function
 from .exceptions import InputError, check_threads, one_line
@@ -259,11 +258,13 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     # capacities and starts again when a run outgrows them
     run = _Run(data, method, opts, stop, fixed, order, interior, check, scaling.progress_out(progress), t_start,
                prescribed=boundary is not None)
+    from .mesh import MeshError
+
     for _ in range(4):
         try:
             run.execute(start_tets, targets)
             break
-        except _mesh.MeshError as exc:
+        except MeshError as exc:
             if not run.grow(exc.code):
                 raise
     else:  # pragma: no cover - capacities doubled 4 times
@@ -474,6 +475,8 @@ class _Run:
 
     def grow(self, code):
         """Double the capacity that ran out; False for any other mesh error."""
+        from . import mesh as _mesh
+
         N = self.data.n_points
         if code == _mesh.ERR_TETCAP:
             self.tet_cap = 2 * (self.tet_cap or 8 * N + 1024)
@@ -484,6 +487,8 @@ class _Run:
         return True
 
     def _mesh(self):
+        from . import mesh as _mesh
+
         o, data = self.opts, self.data
         return _mesh.TetMesh(data.points, data.values, data.ijk, criterion=o.criterion,
                              vertices_in_error=o.vertices_in_error, rel_tol=o.rel_tol, tol_inf=self.stop["tol_inf"],

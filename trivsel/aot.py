@@ -1,0 +1,202 @@
+"""Kernels compiled ahead of time, so that a process runs them without importing numba.
+
+A process that calls numba's kernels pays before the first call, even when the machine
+code comes from numba's on-disk cache: numba's import, and the initialisation of its
+compiler's target (which imports scipy.linalg, among others), about half a second on the
+2-core machine the benchmarks run on.  A decimation of a real scan takes two to three
+seconds in all, so that is a fifth of it.  numba's ``pycc`` compiles the same Python
+functions, with the same numba and LLVM, into an ordinary Python extension module that
+needs neither numba nor its compiler to load.
+
+:func:`kernels` returns the kernels of a library (a module of numba kernels and the names
+of those that Python calls, with their signatures) for a state of a given array layout:
+
+1. the extension module built before for this layout, these sources, this Python, numba
+   and numpy, and this machine's architecture;
+2. else it builds that module (numba's ``pycc`` and a C compiler: about as long as numba's
+   own first compile, once per machine) and loads it;
+3. else numba's just-in-time kernels themselves: when ``TRIVSEL_AOT=0`` or
+   ``NUMBA_DISABLE_JIT=1`` is set, or the build failed (no C compiler, say; the failure
+   is logged once and remembered, and ``trivsel compile`` tries again).
+
+Both give the same results to the bit: the same functions compiled by the same numba to
+the same LLVM IR, without fast-math.  The module is compiled for the architecture's
+generic CPU, so it also runs where one cache directory serves machines of different CPU
+models.  The extension module does not check the types of its arguments as numba's
+dispatcher does, so its file name carries the exact layout of the state it was built for
+(dtype, dimensions, contiguity and alignment of every array): a state of another layout
+finds no module and gets its own.
+
+Modules live in ``$NUMBA_CACHE_DIR/trivsel-aot`` when that is set, else in the package's
+``__pycache__/aot`` (where numba keeps its cache), else in ``~/.cache/trivsel/aot``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import importlib.util
+import logging
+import os
+import platform
+import sys
+import tempfile
+import types
+from pathlib import Path
+
+__all__ = ["kernels", "cache_dir", "layout"]
+
+log = logging.getLogger("trivsel")
+
+_PKG_DIR = Path(__file__).resolve().parent
+_loaded: dict = {}
+
+
+def enabled() -> bool:
+    """Whether ahead-of-time kernels are used (``TRIVSEL_AOT=0`` or ``NUMBA_DISABLE_JIT=1``: not)."""
+    if os.environ.get("TRIVSEL_AOT", "1").strip() in ("0", "false", "no", "off"):
+        return False
+    return os.environ.get("NUMBA_DISABLE_JIT", "0").strip() in ("", "0")
+
+
+def cache_dir() -> Path:
+    """Where the extension modules are kept (see the module's notes)."""
+    env = os.environ.get("NUMBA_CACHE_DIR")
+    if env:
+        return Path(env) / "trivsel-aot"
+    here = _PKG_DIR / "__pycache__"
+    if os.access(here if here.is_dir() else _PKG_DIR, os.W_OK):
+        return here / "aot"
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "trivsel" / "aot"
+
+
+def layout(state) -> str:
+    """The exact layout of a state (a named tuple of arrays) as numba types it: each field's
+    name, dtype, dimensions, contiguity, alignment and writability."""
+    parts = []
+    for name, a in zip(state._fields, state):
+        fl = a.flags
+        parts.append(f"{name}:{a.dtype.str}:{a.ndim}:{'C' if fl.c_contiguous else 'A'}"
+                     f":{int(fl.aligned)}:{int(fl.writeable)}")
+    return ";".join(parts)
+
+
+def _package_version(name):
+    """The bytes that identify an installed package's version, read without importing it."""
+    spec = importlib.util.find_spec(name)
+    if spec is None or spec.origin is None:
+        return b""
+    root = Path(spec.origin).parent
+    for candidate in ("_version.py", "version.py", "__init__.py"):
+        p = root / candidate
+        if p.is_file():
+            return p.read_bytes()
+    return b""
+
+
+def _key(module, sources, state) -> str:
+    import numpy as np
+
+    h = hashlib.sha256()
+    for part in (module, layout(state), sys.version, platform.machine(), np.__version__):
+        h.update(part.encode() + b"\0")
+    for name in ("numba", "llvmlite"):
+        h.update(_package_version(name) + b"\0")
+    for path in sources:
+        h.update(Path(path).read_bytes() + b"\0")
+    return h.hexdigest()[:20]
+
+
+def _paths(module, sources, state):
+    """The extension module's name, its file and the file that records a failed build."""
+    from importlib.machinery import EXTENSION_SUFFIXES
+
+    name = "_aot_" + module.rsplit(".", 1)[-1] + "_" + _key(module, sources, state)
+    d = cache_dir()
+    return name, d / (name + EXTENSION_SUFFIXES[0]), d / (name + ".failed")
+
+
+def _import(name, path):
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod
+
+
+def _jit(module, state):
+    mod = importlib.import_module(module)
+    return types.SimpleNamespace(**{k: fn for k, (fn, _) in mod.aot_exports(_numba_type(state)).items()})
+
+
+def _numba_type(state):
+    from numba import typeof
+
+    return typeof(state)
+
+
+def build(module, state, path):
+    """Compile ``module``'s :func:`aot_exports` for the layout of ``state`` into the extension
+    module ``path`` (written whole or not at all)."""
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")  # numba.pycc's pending deprecation
+        from numba.pycc import CC
+
+    exports = importlib.import_module(module).aot_exports(_numba_type(state))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    name = path.name.split(".")[0]
+    with tempfile.TemporaryDirectory(prefix=name + "-", dir=path.parent) as tmp:
+        cc = CC(name)
+        cc.output_dir = tmp
+        cc.verbose = False
+        for export, (fn, sig) in exports.items():
+            cc.export(export, sig)(fn.py_func)
+        cc.compile()
+        os.replace(os.path.join(tmp, path.name), path)
+
+
+def kernels(module, sources, state, *, rebuild=False):
+    """The kernels of ``module`` (its :func:`aot_exports`) for states of the layout of ``state``,
+    as attributes: from the extension module built ahead of time, built now if need be, or
+    numba's own (see the module's notes).
+
+    Parameters
+    ----------
+    module : str
+        The module that defines the numba kernels and ``aot_exports(state_type)``.
+    sources : sequence of path
+        The source files whose change must rebuild the module (the kernels' own, and every
+        module whose kernels or constants they use).
+    state : NamedTuple of numpy arrays
+        A state of the layout the kernels will be called with.
+    rebuild : bool
+        Build even if an earlier build failed (``trivsel compile``).
+    """
+    if not enabled():
+        return _jit(module, state)
+    name, path, failed = _paths(module, sources, state)
+    if path in _loaded:
+        return _loaded[path]
+    if rebuild and failed.exists():
+        failed.unlink()
+    if not path.exists() and not failed.exists():
+        log.info("compiling %s ahead of time (once per machine)", module)
+        try:
+            build(module, state, path)
+        except Exception as exc:  # noqa: BLE001 - any failure falls back to numba's JIT
+            text = " ".join(str(exc).split())[:500] or type(exc).__name__
+            log.warning("could not compile %s ahead of time (%s): using numba's just-in-time kernels", module, text)
+            try:
+                failed.parent.mkdir(parents=True, exist_ok=True)
+                failed.write_text(text + "\n")
+            except OSError:
+                pass
+    if path.exists():
+        try:
+            _loaded[path] = _import(name, path)
+            return _loaded[path]
+        except ImportError as exc:
+            log.warning("could not load %s (%s): using numba's just-in-time kernels", path, exc)
+    return _jit(module, state)

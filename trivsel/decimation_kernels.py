@@ -1,0 +1,512 @@
+"""The compiled kernels of :mod:`trivsel.decimation`: geometry, corner segments, half-edge
+collapses, the queue and the drivers, on the flat arrays of :class:`~trivsel.decimation.State`.
+
+The method, its drawings and its invariants are described in :mod:`trivsel.decimation`, which
+is the Python face of these kernels and imports this module only when it runs them with
+numba's just-in-time compiler; otherwise :mod:`trivsel.aot` loads the same functions compiled
+ahead of time (:func:`aot_exports` names them), and this module and numba are never imported.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from .decimation import C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL
+from .predicates import orient3d_value
+
+# ----------------------------------------------------------------------------- geometry
+
+
+@njit(cache=True, _nrt=False)
+def _orient(P, a, b, c, d):
+    """Six times the signed volume of (a, b, c, d): exact on integer coordinates."""
+    return orient3d_value(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
+                          P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
+
+
+@njit(cache=True, _nrt=False)
+def _value_in(P, f, q0, q1, q2, q3, p):
+    """``(inside, L)``: whether p is in the closed tet (q0, q1, q2, q3) and, if so, the
+    linear interpolant of the vertex values there (eq. 13)."""
+    l0 = _orient(P, p, q1, q2, q3)
+    if l0 < 0:
+        return False, 0.0
+    l1 = _orient(P, q0, p, q2, q3)
+    if l1 < 0:
+        return False, 0.0
+    l2 = _orient(P, q0, q1, p, q3)
+    if l2 < 0:
+        return False, 0.0
+    l3 = _orient(P, q0, q1, q2, p)
+    if l3 < 0:
+        return False, 0.0
+    D = float(l0 + l1 + l2 + l3)
+    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / D
+
+
+@njit(cache=True, _nrt=False)
+def _has(T, t, w):
+    """Whether row t of ``T`` (a tet's four vertices) holds vertex w."""
+    return T[t, 0] == w or T[t, 1] == w or T[t, 2] == w or T[t, 3] == w
+
+
+@njit(cache=True, _nrt=False)
+def _planes(P, Q, sc, n, G):
+    """For each of v's corners ``sc[i]`` (slot s of tet ``Q[i]``), the orientation of that tet
+    as an affine function of the point x in slot s: ``orient = G[i, :3] . x + G[i, 3]``, so
+    that moving v onto any w is tested with one dot product per tet.
+
+    With a, b, c the other three vertices in order, ``orient(x, a, b, c) = -N . (x - a)``
+    for ``N = (b - a) x (c - a)``, and moving x from slot 0 to slot s is s transpositions."""
+    for i in range(n):
+        s = sc[i] & 3
+        a = Q[i, 1] if s == 0 else Q[i, 0]
+        b = Q[i, 2] if s <= 1 else Q[i, 1]
+        c = Q[i, 3] if s <= 2 else Q[i, 2]
+        ux, uy, uz = P[b, 0] - P[a, 0], P[b, 1] - P[a, 1], P[b, 2] - P[a, 2]
+        vx, vy, vz = P[c, 0] - P[a, 0], P[c, 1] - P[a, 1], P[c, 2] - P[a, 2]
+        nx, ny, nz = uy * vz - uz * vy, uz * vx - ux * vz, ux * vy - uy * vx
+        sign = -1 if s % 2 == 0 else 1
+        G[i, 0], G[i, 1], G[i, 2] = sign * nx, sign * ny, sign * nz
+        G[i, 3] = -sign * (nx * P[a, 0] + ny * P[a, 1] + nz * P[a, 2])
+
+
+@njit(cache=True, _nrt=False)
+def _gather(S, sc, n, Q):
+    """Copy the star's tets (corners ``sc[:n]``) into ``Q`` and its buckets' points into
+    ``S.pbuf`` (``S.phome``: the star index of each point's tet), in star order; returns the
+    number of points and the sum of their squared residuals."""
+    T, phead, pnext, res, pbuf, phome = S.T, S.phead, S.pnext, S.res, S.pbuf, S.phome
+    m = 0
+    old = 0.0
+    for i in range(n):
+        t = sc[i] >> 2
+        Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = T[t, 0], T[t, 1], T[t, 2], T[t, 3]
+        p = phead[t]
+        while p >= 0:
+            old += res[p] * res[p]
+            pbuf[m] = p
+            phome[m] = i
+            m += 1
+            p = pnext[p]
+    return m, old
+
+
+@njit(cache=True, _nrt=False)
+def _value_moved(P, f, Q, sc, i, w, p):
+    """``_value_in`` for star tet ``Q[i]`` with v's slot holding w."""
+    s = sc[i] & 3
+    return _value_in(P, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
+                     w if s == 3 else Q[i, 3], p)
+
+
+@njit(cache=True, _nrt=False)
+def _locate_star(P, f, Q, sc, kw, n, w, p, hint):
+    """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
+    w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
+    if hint >= 0 and not kw[hint]:
+        ok, val = _value_moved(P, f, Q, sc, hint, w, p)
+        if ok:
+            return hint, val
+    for i in range(n):
+        if i == hint or kw[i]:
+            continue
+        ok, val = _value_moved(P, f, Q, sc, i, w, p)
+        if ok:
+            return i, val
+    return -1, 0.0
+
+
+# ----------------------------------------------------------------------------- links
+
+
+@njit(cache=True, _nrt=False)
+def _link(S, v, c):
+    """Add corner c to vertex v's corners, as the newest.  A full segment moves to the top of
+    the pool with twice the room (``_run`` makes sure the pool has it)::
+
+        cpool  [ v: c9 c4 c1 . . | u: c7 c2 . | ... | top ]   c1 newest of v
+    """
+    d = S.deg[v]
+    if d == S.vcap[v]:
+        top = S.ctr[C_PTOP]
+        cap = max(2 * d, 8)
+        a = S.vstart[v]
+        for k in range(d):
+            S.cpool[top + k] = S.cpool[a + k]
+        S.vstart[v] = top
+        S.vcap[v] = cap
+        S.ctr[C_PTOP] = top + cap
+    S.cpool[S.vstart[v] + d] = c
+    S.deg[v] = d + 1
+
+
+@njit(cache=True, _nrt=False)
+def _unlink(S, v, c):
+    """Take corner c out of vertex v's corners, the others keeping their order."""
+    a = S.vstart[v]
+    d = S.deg[v]
+    k = 0
+    while S.cpool[a + k] != c:
+        k += 1
+    for k in range(k, d - 1):
+        S.cpool[a + k] = S.cpool[a + k + 1]
+    S.deg[v] = d - 1
+
+
+@njit(cache=True, _nrt=False)
+def _star(S, v, out):
+    """The corners of vertex v (tet ``c >> 2``, slot ``c & 3``), newest first, into ``out``;
+    their count, or -1 if there are more than ``out`` holds (v then does not move)."""
+    n = S.deg[v]
+    if n > out.shape[0]:
+        return -1
+    a = S.vstart[v] + n - 1
+    for k in range(n):
+        out[k] = S.cpool[a - k]
+    return n
+
+
+# ----------------------------------------------------------------------------- collapses
+
+
+@njit(cache=True, _nrt=False)
+def _allowed(S, v, w):
+    """The box constraint: w is on every box face that v is on."""
+    lk = S.lock[v]
+    if lk & LOCK_ALL:
+        return False
+    for a in range(3):
+        if (lk >> a) & 1 and S.P[w, a] != S.P[v, a]:
+            return False
+    return True
+
+
+@njit(cache=True, _nrt=False)
+def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
+    """``(key, delta, shared)`` if v moves onto w (v's star gathered by ``_gather``: tets
+    ``Q[:n]``, their planes ``G``, bucket points ``S.pbuf[:m]``): ``delta`` the change of the
+    squared-residual sum, ``key`` that change or, with the max criterion, the largest
+    |residual| of the points that move (v and its buckets' points); the key is inf if the
+    collapse is invalid (a tet would not keep a positive volume), takes a residual above
+    ``tol_inf`` (negative: no limit) or cannot beat ``bound``.  ``shared``: the number of
+    v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w)."""
+    P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
+    shared = 0
+    wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
+    for i in range(n):
+        h = _has(Q, i, w)
+        kw[i] = h
+        if h:
+            shared += 1
+            continue
+        if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
+            return INF, INF, shared
+    if shared == 0:
+        return INF, INF, shared
+    i, val = _locate_star(P, f, Q, sc, kw, n, w, v, -1)
+    if i < 0:
+        return INF, INF, shared
+    r = f[v] - val
+    if 0.0 <= tol_inf < abs(r):
+        return INF, INF, shared
+    new = r * r
+    mx = abs(r)
+    for k in range(m):
+        # the rest only adds: no better than the best so far
+        if (mx if use_max else new - old) > bound:
+            return INF, INF, shared
+        p = pbuf[k]
+        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, phome[k])
+        if i < 0:
+            return INF, INF, shared
+        r = f[p] - val
+        if 0.0 <= tol_inf < abs(r):
+            return INF, INF, shared
+        new += r * r
+        mx = max(mx, abs(r))
+    return (mx if use_max else new - old), new - old, shared
+
+
+@njit(cache=True, _nrt=False)
+def _best(S, v, sc, G, mark, tol_inf):
+    """v's cheapest valid collapse ``(key, w, tets of w after, change of the squared-residual
+    sum)`` over its neighbours w (ties: fewer tets around w, then the smaller w);
+    ``(inf, -1, 0, inf)`` if none."""
+    n = _star(S, v, sc)
+    best, bw, be, bd = INF, -1, 0, INF
+    if n < 0:
+        return best, bw, be, bd
+    Q, kw = S.Q, S.kw
+    # the squared residuals that the collapse replaces (v's own is 0)
+    m, old = _gather(S, sc, n, Q)
+    _planes(S.P, Q, sc, n, G)
+    use_max = S.ctr[C_MAXKEY] != 0
+    S.stamp[0] += 1
+    stamp = S.stamp[0]
+    mark[v] = stamp
+    # v's last target first: it is often still the best, and a good first bound prunes the
+    # others early (the argmin, ties included, does not depend on the order)
+    first = S.htgt[v]
+    for i in range(-1, n):
+        for j in range(1 if i < 0 else 4):
+            w = first if i < 0 else Q[i, j]
+            if w < 0 or mark[w] == stamp:
+                continue
+            mark[w] = stamp
+            if not S.isv[w] or not _allowed(S, v, w):
+                continue
+            c, delta, shared = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
+            if c == INF:
+                continue
+            e = S.deg[w] + n - 2 * shared
+            if c < best or (c == best and (e < be or (e == be and w < bw))):
+                best, bw, be, bd = c, w, e, delta
+    return best, bw, be, bd
+
+
+@njit(cache=True, _nrt=False)
+def _collapse(S, v, w, sc, n):
+    """Move v onto w (v's corners ``sc[:n]``): drop the tets of edge vw, give w the others
+    and put v and the points of v's buckets into the tets that now hold them, located as
+    ``_cost`` located them."""
+    T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
+    m, _ = _gather(S, sc, n, Q)
+    for i in range(n):
+        kw[i] = _has(Q, i, w)
+    # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
+    for k in range(-1, m):
+        p = v if k < 0 else pbuf[k]
+        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
+        S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
+        r = f[p] - val
+        S.acc[0] += r * r - res[p] * res[p]
+        res[p] = r
+    for i in range(n):
+        c = sc[i]
+        t = c >> 2
+        S.phead[t] = -1
+        if kw[i]:
+            S.alive[t] = False
+            for j in range(4):
+                if T[t, j] != v:
+                    _unlink(S, T[t, j], 4 * t + j)
+        else:
+            T[t, c & 3] = w
+            _link(S, w, c)
+    S.deg[v] = 0
+    S.isv[v] = False
+    for k in range(-1, m):
+        p = v if k < 0 else pbuf[k]
+        t = S.ptet[p]
+        S.pnext[p] = S.phead[t]
+        S.phead[t] = p
+
+
+# ----------------------------------------------------------------------------- the queue
+
+
+@njit(cache=True, _nrt=False)
+def _before(S, a, b):
+    ka, kb = S.hkey[a], S.hkey[b]
+    if ka != kb:
+        return ka < kb
+    da, db = S.hdeg[a], S.hdeg[b]
+    return da < db or (da == db and a < b)
+
+
+@njit(cache=True, _nrt=False)
+def _put(S, i, x):
+    """Vertex x into heap slot i."""
+    S.hv[i] = x
+    S.hpos[x] = i
+
+
+@njit(cache=True, _nrt=False)
+def _sift_up(S, i):
+    x = S.hv[i]
+    while i > 0 and _before(S, x, S.hv[(i - 1) >> 1]):
+        _put(S, i, S.hv[(i - 1) >> 1])
+        i = (i - 1) >> 1
+    _put(S, i, x)
+
+
+@njit(cache=True, _nrt=False)
+def _sift_down(S, i):
+    hv, nh = S.hv, S.ctr[C_HN]
+    x = hv[i]
+    while 2 * i + 1 < nh:
+        j = 2 * i + 1
+        if j + 1 < nh and _before(S, hv[j + 1], hv[j]):
+            j += 1
+        if not _before(S, hv[j], x):
+            break
+        _put(S, i, hv[j])
+        i = j
+    _put(S, i, x)
+
+
+@njit(cache=True, _nrt=False)
+def _queue(S, v, key, w, d, delta):
+    """Set v's cheapest collapse (onto w, leaving w with d tets); an inf key takes v out
+    of the queue."""
+    i = S.hpos[v]
+    if key == INF:
+        if i >= 0:
+            nh = S.ctr[C_HN] - 1
+            S.ctr[C_HN] = nh
+            S.hpos[v] = -1
+            if i < nh:
+                x = S.hv[nh]
+                _put(S, i, x)
+                _sift_up(S, i)
+                _sift_down(S, S.hpos[x])
+        return
+    S.hkey[v] = key
+    S.hsse[v] = delta
+    S.htgt[v] = w
+    S.hdeg[v] = d
+    if i < 0:
+        i = S.ctr[C_HN]
+        S.ctr[C_HN] = i + 1
+        _put(S, i, v)
+        _sift_up(S, i)
+    else:
+        _sift_up(S, i)
+        _sift_down(S, S.hpos[v])
+
+
+# ----------------------------------------------------------------------------- drivers
+
+
+@njit(cache=True, _nrt=False)
+def _init(S, tol_inf):
+    """Corner lists from the tets, then every vertex's cheapest collapse."""
+    M = S.T.shape[0]
+    for t in range(M - 1, -1, -1):
+        for j in range(3, -1, -1):
+            _link(S, S.T[t, j], 4 * t + j)
+    N = S.P.shape[0]
+    for v in range(N):
+        S.aff[v] = v
+    _evaluate(S, S.aff, N, tol_inf)
+
+
+@njit(cache=True, _nrt=False)
+def _run(S, stop_count, sse_max, tol_inf):
+    """Collapse until ``stop_count`` vertices remain (0), the cheapest collapse would take the
+    squared-residual sum above ``sse_max`` (2), or no valid collapse is left (1).  With lazy
+    updates, a marked vertex at the head of the queue is re-evaluated before anything else."""
+    sc, aff, mark = S.sc, S.aff, S.mark
+    while S.ctr[C_NV] > stop_count:
+        if S.ctr[C_HN] == 0:
+            return 1
+        v = S.hv[0]
+        if S.dirty[v]:
+            S.dirty[v] = False
+            key, x, d, delta = _best(S, v, sc, S.G, mark, tol_inf)
+            _queue(S, v, key, x, d, delta)
+            continue
+        w = S.htgt[v]
+        if S.acc[0] + S.hsse[v] > sse_max:
+            return 2
+        if S.ctr[C_PTOP] + 4 * (S.deg[w] + S.deg[v]) + 16 > S.cpool.shape[0]:
+            # w's corners may move (twice, from a small segment) and the pool lacks the room
+            return 3
+        n = _star(S, v, sc)
+        # the vertices whose tets change: their collapses are evaluated again
+        S.stamp[0] += 1
+        stamp = S.stamp[0]
+        mark[v] = stamp
+        na = 0
+        for i in range(n):
+            t = sc[i] >> 2
+            for j in range(4):
+                u = S.T[t, j]
+                if mark[u] != stamp:
+                    mark[u] = stamp
+                    aff[na] = u
+                    na += 1
+        _collapse(S, v, w, sc, n)
+        _queue(S, v, INF, -1, 0, INF)
+        S.removed[S.ctr[C_NREM]] = v
+        S.ctr[C_NREM] += 1
+        S.ctr[C_NV] -= 1
+        if S.ctr[C_LAZY]:
+            na = _mark_queued(S, aff, na)
+        _evaluate(S, aff, na, tol_inf)
+    return 0
+
+
+@njit(cache=True, _nrt=False)
+def _mark_queued(S, verts, m):
+    """Lazy updates: mark the queued vertices of ``verts[:m]`` and move the others (which may
+    now have a valid collapse) to the front; returns their number, to evaluate at once."""
+    k = 0
+    for i in range(m):
+        u = verts[i]
+        if S.hpos[u] >= 0:
+            S.dirty[u] = True
+        elif not S.lock[u] & LOCK_ALL:
+            verts[k] = u
+            k += 1
+    return k
+
+
+@njit(cache=True, _nrt=False)
+def _flush(S, tol_inf):
+    """Re-evaluate every marked vertex (in index order) and clear the marks."""
+    m = 0
+    for v in range(S.P.shape[0]):
+        if S.dirty[v]:
+            S.dirty[v] = False
+            S.aff[m] = v
+            m += 1
+    _evaluate(S, S.aff, m, tol_inf)
+
+
+@njit(cache=True, _nrt=False)
+def _evaluate(S, verts, m, tol_inf):
+    """Queue the cheapest collapses of ``verts[:m]``."""
+    for i in range(m):
+        key, x, d, delta = _best(S, verts[i], S.sc, S.G, S.mark, tol_inf)
+        _queue(S, verts[i], key, x, d, delta)
+
+
+@njit(cache=True)
+def _weights(S):
+    """For every point, the 4 vertices and barycentric weights of the tet that holds it
+    (a vertex: itself with weight 1)."""
+    N = S.P.shape[0]
+    verts = np.empty((N, 4), np.int64)
+    w = np.zeros((N, 4))
+    for p in range(N):
+        t = S.ptet[p]
+        if S.isv[p] or t < 0:
+            verts[p, :] = p
+            w[p, 0] = 1.0
+            continue
+        q0, q1, q2, q3 = S.T[t, 0], S.T[t, 1], S.T[t, 2], S.T[t, 3]
+        l0 = _orient(S.P, p, q1, q2, q3)
+        l1 = _orient(S.P, q0, p, q2, q3)
+        l2 = _orient(S.P, q0, q1, p, q3)
+        l3 = _orient(S.P, q0, q1, q2, p)
+        D = float(l0 + l1 + l2 + l3)
+        verts[p, 0], verts[p, 1], verts[p, 2], verts[p, 3] = q0, q1, q2, q3
+        w[p, 0], w[p, 1], w[p, 2], w[p, 3] = l0 / D, l1 / D, l2 / D, l3 / D
+    return verts, w
+
+
+def aot_exports(state_type):
+    """The kernels that :class:`~trivsel.decimation.Decimation` calls from Python, by the names
+    of :data:`trivsel.decimation.KERNELS`, each with its signature for ``state_type`` (the
+    numba type of a :class:`~trivsel.decimation.State`); everything else is compiled into
+    their machine code."""
+    from numba import types as nt
+
+    f8, i8 = nt.float64, nt.int64
+    return {"init": (_init, nt.none(state_type, f8)),
+            "run": (_run, i8(state_type, i8, f8, f8)),
+            "flush": (_flush, nt.none(state_type, f8)),
+            "weights": (_weights, nt.Tuple((nt.int64[:, ::1], nt.float64[:, ::1]))(state_type))}
