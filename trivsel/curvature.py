@@ -301,20 +301,27 @@ def _widening_fits(npts, indptr, indices, max_ring, fit):
     # closed 1-ring (point itself + edge neighbours) as a sparse pattern
     adj = sp.csr_matrix((np.ones(indices.size, dtype=np.int32), indices, indptr), shape=(npts, npts))
     closed = (adj + sp.identity(npts, dtype=np.int32, format="csr")).tocsr()
+    del adj  # as large as the graph: not kept through the fits
     closed.sum_duplicates()
     closed.sort_indices()
+    # int64 indices once, in place of the int32 ones (the fits index with them)
+    closed.indptr, closed.indices = closed.indptr.astype(np.int64), closed.indices.astype(np.int64)
 
     results = None
     ring = np.ones(npts, dtype=np.int8)
     todo = np.arange(npts)
     rows = closed
     for k in range(1, max_ring + 1):
-        arrays, deficient = fit(todo, rows.indptr.astype(np.int64), rows.indices.astype(np.int64),
-                                k == max_ring)
-        if results is None:
-            results = [np.empty((npts,) + a.shape[1:], dtype=a.dtype) for a in arrays]
-        for res, a in zip(results, arrays):
-            res[todo] = a
+        arrays, deficient = fit(todo, rows.indptr.astype(np.int64, copy=False),
+                                rows.indices.astype(np.int64, copy=False), k == max_ring)
+        if results is None and todo.size == npts:
+            results = list(arrays)  # every point, in order: kept as they are, not copied
+        else:
+            if results is None:
+                results = [np.empty((npts,) + a.shape[1:], dtype=a.dtype) for a in arrays]
+            for res, a in zip(results, arrays):
+                res[todo] = a
+        del arrays
         ring[todo] = k
         if not deficient.any() or k == max_ring:
             break
