@@ -91,6 +91,17 @@ def test_a_failed_build_falls_back_to_numba_once_and_is_tried_again_by_compile(m
     assert len(calls) == 2
 
 
+def test_no_c_compiler_is_found_before_any_compiling(monkeypatch, tmp_path, caplog):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("CC", "no-such-compiler-for-trivsel")
+    data = sample_grid(4, 6)
+    with caplog.at_level(logging.WARNING, logger="trivsel"):
+        dec = dm.Decimation(data.ijk, data.shape, data.values)
+    assert hasattr(dec._k.run, "signatures")
+    assert "no C compiler: 'no-such-compiler-for-trivsel' not found" in caplog.text
+    assert dec.run(20) == 0
+
+
 def test_a_damaged_module_is_not_loaded(monkeypatch, tmp_path, caplog):
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     data = sample_grid(4, 6)

@@ -39,7 +39,9 @@ import importlib.util
 import logging
 import os
 import platform
+import shutil
 import sys
+import sysconfig
 import tempfile
 import types
 from pathlib import Path
@@ -144,6 +146,10 @@ def build(module, state, path):
         warnings.simplefilter("ignore")  # numba.pycc's pending deprecation
         from numba.pycc import CC
 
+    if os.name == "posix":  # before minutes of LLVM work that a missing compiler would waste
+        compiler = (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()[0]
+        if shutil.which(compiler) is None:
+            raise OSError(f"no C compiler: {compiler!r} not found")
     exports = importlib.import_module(module).aot_exports(_numba_type(state))
     path.parent.mkdir(parents=True, exist_ok=True)
     name = path.name.split(".")[0]
