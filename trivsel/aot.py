@@ -33,6 +33,7 @@ Modules live in ``$NUMBA_CACHE_DIR/trivsel-aot`` when that is set, else in the p
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import importlib
 import importlib.util
@@ -97,16 +98,24 @@ def _package_version(name):
     return b""
 
 
-def _key(module, sources, state) -> str:
+@functools.lru_cache(maxsize=None)
+def _build_hash(module, sources) -> bytes:
+    """What a build depends on besides the state's layout (read once per process)."""
     import numpy as np
 
     h = hashlib.sha256()
-    for part in (module, layout(state), sys.version, platform.machine(), np.__version__):
+    for part in (module, sys.version, platform.machine(), np.__version__):
         h.update(part.encode() + b"\0")
     for name in ("numba", "llvmlite"):
         h.update(_package_version(name) + b"\0")
     for path in sources:
         h.update(Path(path).read_bytes() + b"\0")
+    return h.digest()
+
+
+def _key(module, sources, state) -> str:
+    h = hashlib.sha256(_build_hash(module, tuple(sources)))
+    h.update(layout(state).encode())
     return h.hexdigest()[:20]
 
 

@@ -314,11 +314,9 @@ def _widening_fits(npts, indptr, indices, max_ring, fit):
     for k in range(1, max_ring + 1):
         arrays, deficient = fit(todo, rows.indptr.astype(np.int64, copy=False),
                                 rows.indices.astype(np.int64, copy=False), k == max_ring)
-        if results is None and todo.size == npts:
-            results = list(arrays)  # every point, in order: kept as they are, not copied
+        if results is None:
+            results = list(arrays)  # the first ring fits every point, in order: kept, not copied
         else:
-            if results is None:
-                results = [np.empty((npts,) + a.shape[1:], dtype=a.dtype) for a in arrays]
             for res, a in zip(results, arrays):
                 res[todo] = a
         del arrays

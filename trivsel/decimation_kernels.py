@@ -499,10 +499,10 @@ def _weights(S):
 
 
 def aot_exports(state_type):
-    """The kernels that :class:`~trivsel.decimation.Decimation` calls from Python, by the names
-    of :data:`trivsel.decimation.KERNELS`, each with its signature for ``state_type`` (the
-    numba type of a :class:`~trivsel.decimation.State`); everything else is compiled into
-    their machine code."""
+    """The kernels that :class:`~trivsel.decimation.Decimation` calls from Python, by the
+    names it calls them (``init``, ``run``, ``flush``, ``weights``), each with its signature
+    for ``state_type`` (the numba type of a :class:`~trivsel.decimation.State`); everything
+    else is compiled into their machine code."""
     from numba import types as nt
 
     f8, i8 = nt.float64, nt.int64
