@@ -8,12 +8,14 @@ for (pyvista's ``triangulate()``, 5 tets per cell; the Kuhn split, 6) and the tw
 stop ``vtkUnstructuredGridQuadricDecimation`` (``SetTargetReduction(1 - fraction)``, or
 ``SetNumberOfEdgesToDecimate`` to the same vertex count as trivsel) is timed, and the
 fastest variant's median counts.  Runs alternate between the programs so that a
-change in the machine's load hits both.  trivsel's numba kernels are compiled once
-before the timing (a first-use cost, measured by ``trivsel compile``).
+change in the machine's load hits both.  trivsel's kernels are compiled once before the
+timing (a first-use cost, measured by ``trivsel compile``: the extension modules of
+trivsel/aot.py, and numba's cache for ``--numba-too``).
 
     python benchmarks/bench_cli.py                      # n = 32, 64; 3 runs each
     python benchmarks/bench_cli.py --n 32 64 128 --repeats 3
     python benchmarks/bench_cli.py --volumes icbm152 statmap aniso --fractions 0.1 0.05 --methods decimate
+    python benchmarks/bench_cli.py --numba-too           # also each method with TRIVSEL_AOT=0
 
 Prints one table: median seconds per program and the ratio trivsel / VTK's fastest.
 """
@@ -21,6 +23,7 @@ Prints one table: median seconds per program and the ratio trivsel / VTK's faste
 from __future__ import annotations
 
 import argparse
+import os
 import statistics
 import subprocess
 import sys
@@ -81,9 +84,9 @@ def write_vti(d, path):
     return d.n_points
 
 
-def run(cmd):
+def run(cmd, env=None):
     t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True)
+    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
     seconds = time.perf_counter() - t0
     if r.returncode:
         raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
@@ -98,6 +101,8 @@ def main(argv=None):
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.1])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", nargs="+", default=["paper", "greedy"])
+    ap.add_argument("--numba-too", action="store_true",
+                    help="also time each method with numba's own kernels (TRIVSEL_AOT=0), in the same alternation")
     a = ap.parse_args(argv)
     import trivsel
     from trivsel.selection import count_for_fraction
@@ -109,7 +114,12 @@ def main(argv=None):
         cases += [(v, lambda v=v: load_volume(v)) for v in a.volumes]
 
     py = sys.executable
-    subprocess.run([py, "-m", "trivsel", "compile"], check=True, capture_output=True)
+    jit_env = dict(os.environ, TRIVSEL_AOT="0")
+    for m in a.methods:  # every kernel a timed run loads, so that no timed run compiles
+        subprocess.run([py, "-m", "trivsel", "compile", "--method", m], check=True, capture_output=True)
+        if a.numba_too:
+            subprocess.run([py, "-m", "trivsel", "compile", "--method", m], check=True, capture_output=True,
+                           env=jit_env)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         tmp = Path(tmp)
@@ -124,6 +134,8 @@ def main(argv=None):
                 keep = count_for_fraction(fraction, N)
                 progs = {m: [py, "-m", "trivsel", "reduce", str(vti), "--array", "f", "--fractions", str(fraction),
                              "--method", m, "--progress", "never", "--out", str(tmp / f"out_{m}")] for m in a.methods}
+                if a.numba_too:
+                    progs.update({f"{m} (numba)": progs[m] for m in a.methods})
                 for split in ("pv5", "kuhn6"):
                     for stop in ("target", "edges"):
                         progs[f"vtk-{split}-{stop}"] = [py, str(script), str(vti), str(tmp / "vtk.vtu"), split, stop,
@@ -131,10 +143,10 @@ def main(argv=None):
                 times = {k: [] for k in progs}
                 for _ in range(a.repeats):
                     for name, cmd in progs.items():
-                        times[name].append(run(cmd)[0])
+                        times[name].append(run(cmd, jit_env if name.endswith("(numba)") else None)[0])
                 med = {k: statistics.median(v) for k, v in times.items()}
                 vtk_best = min((k for k in med if k.startswith("vtk-")), key=med.get)
-                for m in a.methods:
+                for m in [k for k in progs if not k.startswith("vtk-")]:
                     rows.append((label, N, fraction, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best]))
                 print(f"{label} to {fraction:g}: " + ", ".join(f"{k} {v:.2f} s" for k, v in med.items()), flush=True)
     print(f"\nwhole processes, medians of {a.repeats} alternating runs")

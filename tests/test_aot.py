@@ -11,9 +11,10 @@ from importlib.machinery import EXTENSION_SUFFIXES
 import numpy as np
 import pytest
 
+import trivsel
 from trivsel import aot
 from trivsel import decimation as dm
-from trivsel.data import sample_grid
+from trivsel.data import sample_grid, scattered
 
 
 def _run(data, key, lock, tol_inf=None):
@@ -69,7 +70,7 @@ def test_a_failed_build_falls_back_to_numba_once_and_is_tried_again_by_compile(m
     monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
     calls = []
 
-    def no_compiler(module, state, path):
+    def no_compiler(module, state, path, variant=None):
         calls.append(path)
         raise OSError("command 'gcc' failed: No such file or directory")
 
@@ -146,6 +147,22 @@ print(json.dumps({"numba": "numba" in sys.modules, "results": out}))
 """
 
 
+def _same_without_numba(code, env, built_dir, built):
+    """``code`` run with the extension modules (never importing numba, building nothing) and
+    with numba's own kernels: the same results."""
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
+    assert p.returncode == 0, p.stderr
+    ours = json.loads(p.stdout)
+    assert ours["numba"] is False
+    assert sorted(built_dir.iterdir()) == built
+    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900,
+                       env=dict(env, TRIVSEL_AOT="0"))
+    assert p.returncode == 0, p.stderr
+    numbas = json.loads(p.stdout)
+    assert numbas["numba"] is True
+    assert numbas["results"] == ours["results"]
+
+
 @pytest.mark.slow
 def test_compile_builds_what_a_decimation_runs_and_a_run_needs_no_numba(tmp_path):
     """After `trivsel compile --method decimate` in an empty cache, decimations with lazy and
@@ -159,15 +176,112 @@ def test_compile_builds_what_a_decimation_runs_and_a_run_needs_no_numba(tmp_path
     assert p.returncode == 0, p.stderr
     built = sorted((tmp_path / "cache" / "trivsel-aot").iterdir())
     assert len(built) == 1 and built[0].name.endswith(tuple(EXTENSION_SUFFIXES))
-    p = subprocess.run([sys.executable, "-c", _DECIMATE_WITHOUT_NUMBA], capture_output=True, text=True,
+    _same_without_numba(_DECIMATE_WITHOUT_NUMBA, env, tmp_path / "cache" / "trivsel-aot", built)
+
+
+# --- the insertion methods' kernels (trivsel.mesh.entries)
+
+def _scattered_data():
+    rng = np.random.default_rng(3)
+    p = rng.uniform(-1, 1, (400, 3))
+    return scattered(p, np.sin(3 * p[:, 0]) * p[:, 1] + p[:, 2] ** 2)
+
+
+# every kernel a reduction calls from Python: both drivers, the first cone and swap, the
+# three stopping rules, both swap criteria, the final global pass, the point weights of
+# fitted values, grids (exact integer predicates) and scattered points (float ones)
+_MESH_RUNS = [("paper", 4, 10, dict(fractions=[0.5, 0.2, 0.1], values=["data", "fit"])),
+              ("paper", 5, 9, dict(fractions=[0.3, 0.1], criterion="max", final_pass=True)),
+              ("paper", 2, 8, dict(tol_rms=0.01)),
+              ("paper", "scattered", None, dict(fractions=[0.3])),
+              ("greedy", 1, 9, dict(fractions=[0.3, 0.1], values=["data", "fit"])),
+              ("greedy", 4, 9, dict(tol_inf=0.05)),
+              ("greedy", "scattered", None, dict(fractions=[0.2]))]
+
+
+def _mesh_run(method, fn, n, kw):
+    data = _scattered_data() if fn == "scattered" else sample_grid(fn, n)
+    r = trivsel.reduce(data, method=method, **kw)
+    out = [r.selected, r.order]
+    for s in r.snapshots:
+        out += [s.selected, s.tets, s.residuals, np.array(list(s.errors.values())), np.array(list(s.flips.values()))]
+        if s.fit is not None:
+            out += [s.fit["values"]]
+    return out
+
+
+@pytest.mark.parametrize("method, fn, n, kw", _MESH_RUNS)
+def test_insertion_kernels_ahead_of_time_give_numbas_results_to_the_bit(monkeypatch, method, fn, n, kw):
+    from trivsel.mesh import entries
+
+    loaded = []
+    real = entries.kernels
+
+    def spy(S, **kwargs):
+        loaded.append(real(S, **kwargs))
+        return loaded[-1]
+
+    monkeypatch.setattr("trivsel.mesh.tetmesh.kernels", spy)
+    ours = _mesh_run(method, fn, n, kw)
+    assert loaded and all(isinstance(k, type(aot)) for k in loaded), "not the extension module"
+    assert loaded[0].__file__.startswith(str(aot.cache_dir()))
+    monkeypatch.setenv("TRIVSEL_AOT", "0")
+    loaded.clear()
+    numbas = _mesh_run(method, fn, n, kw)
+    assert loaded and all(aot.is_jit(k) for k in loaded)
+    assert hasattr(loaded[0].swap, "signatures")  # numba's dispatcher
+    assert len(ours) == len(numbas)
+    for a, b in zip(ours, numbas):
+        assert np.array_equal(a, b)
+
+
+def test_the_mesh_state_layout_names_its_options_types():
+    """The options are scalars in the state: their types are part of the layout (numba types
+    a Python bool, int and float differently), and so of the module's name."""
+    from trivsel.mesh import make_state
+
+    ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
+    S = make_state(ijk.astype(float), np.zeros(4), ijk, pin=False)
+    text = aot.layout(S)
+    assert "opt:(use_int:bool,criterion:int," in text and "rel_tol:float" in text
+    odd = S._replace(opt=S.opt._replace(max_rounds=np.int32(5)))
+    assert aot.layout(odd) != text
+    assert "max_rounds:<i4" in aot.layout(odd)
+
+
+_MESH_WITHOUT_NUMBA = """
+import json, sys
+import numpy as np
+import trivsel
+from trivsel.data import sample_grid
+out = []
+for method in ("paper", "greedy"):
+    for kw in (dict(fractions=[0.5, 0.1], values=["data", "fit"]), dict(tol_rms=0.02), dict(fractions=[0.2], final_pass=True)):
+        r = trivsel.reduce(sample_grid(4, 8), method=method, **kw)
+        out.append([[s.n_selected, s.errors, s.selected.tolist(), s.tets.tolist(), s.flips,
+                     None if s.fit is None else s.fit["errors"]] for s in r.snapshots])
+print(json.dumps({"numba": "numba" in sys.modules, "results": out}))
+"""
+
+
+@pytest.mark.slow
+def test_compile_builds_what_an_insertion_runs_and_a_run_needs_no_numba(tmp_path):
+    """The workflow's sequence in an empty cache (`trivsel compile --part 0` and `--part 1`,
+    then `--part 2` for each method) builds one extension module per method; then paper and
+    greedy reductions (fitted values, a tolerance, the final pass) run in a process that never
+    imports numba and builds nothing, with the results of numba's own kernels.  About 90 s:
+    a cold compile, two builds and numba's drivers."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
+    env.pop("TRIVSEL_AOT", None)
+    for args in (["--part", "0"], ["--part", "1"], ["--part", "2"], ["--method", "greedy", "--part", "2"]):
+        p = subprocess.run([sys.executable, "-m", "trivsel", "compile", *args], capture_output=True, text=True,
+                           timeout=900, env=env)
+        assert p.returncode == 0, p.stderr
+    built = sorted((tmp_path / "cache" / "trivsel-aot").iterdir())
+    # _aot_entry_kernels_{variant}_{hash}.so: one per method
+    assert sorted(b.name.split(".")[0].split("_")[-2] for b in built) == ["greedy", "paper"]
+    assert all(b.name.endswith(tuple(EXTENSION_SUFFIXES)) for b in built)
+    p = subprocess.run([sys.executable, "-m", "trivsel", "compile", "--part", "0"], capture_output=True, text=True,
                        timeout=900, env=env)
-    assert p.returncode == 0, p.stderr
-    ours = json.loads(p.stdout)
-    assert ours["numba"] is False
-    assert sorted((tmp_path / "cache" / "trivsel-aot").iterdir()) == built
-    p = subprocess.run([sys.executable, "-c", _DECIMATE_WITHOUT_NUMBA], capture_output=True, text=True,
-                       timeout=900, env=dict(env, TRIVSEL_AOT="0"))
-    assert p.returncode == 0, p.stderr
-    numbas = json.loads(p.stdout)
-    assert numbas["numba"] is True
-    assert numbas["results"] == ours["results"]
+    assert p.returncode == 0 and "compiled or loaded 0 kernel signatures" in p.stdout  # built: nothing to do
+    _same_without_numba(_MESH_WITHOUT_NUMBA, env, tmp_path / "cache" / "trivsel-aot", built)

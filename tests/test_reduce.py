@@ -287,14 +287,15 @@ print(json.dumps({"results": results, "compiled": {k: v for k, v in misses().ite
 
 @pytest.mark.slow
 def test_compile_kernels_covers_what_a_reduction_compiles(tmp_path):
-    """`trivsel compile` (parts 0 and 1, then 2: the method's driver) must compile the very
-    signatures a reduction needs: with an empty numba cache, after it, a paper and a
-    greedy reduction compile nothing more (numba's cache-miss counters), and no kernel
-    got a second variant (the predicates have an int and a float one).  A new process
-    then loads only the kernels a reduction calls from Python (the helpers are inside
-    their machine code, so they are not pinned one by one) and gets the same results.
-    About 40 s: a cold compile."""
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"))
+    """With numba's own kernels (``TRIVSEL_AOT=0``; tests/test_aot.py has the extension
+    module), `trivsel compile` (parts 0 and 1, then 2: the method's driver) must compile
+    the very signatures a reduction needs: with an empty numba cache, after it, a paper
+    and a greedy reduction compile nothing more (numba's cache-miss counters), and no
+    kernel got a second variant (the predicates have an int and a float one).  A new
+    process then loads only the kernels a reduction calls from Python (the helpers are
+    inside their machine code, so they are not pinned one by one) and gets the same
+    results.  About 40 s: a cold compile."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba-cache"), TRIVSEL_AOT="0")
     p = subprocess.run([sys.executable, "-c", _COMPILE_THEN_REDUCE], capture_output=True,
                        text=True, timeout=900, env=env)
     assert p.returncode == 0, p.stderr

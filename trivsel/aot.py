@@ -8,8 +8,13 @@ seconds in all, so that is a fifth of it.  numba's ``pycc`` compiles the same Py
 functions, with the same numba and LLVM, into an ordinary Python extension module that
 needs neither numba nor its compiler to load.
 
-:func:`kernels` returns the kernels of a library (a module of numba kernels and the names
-of those that Python calls, with their signatures) for a state of a given array layout:
+:func:`kernels` returns the kernels of a library for a state of a given array layout.  A
+library is a module of numba kernels with ``aot_exports(state_type[, variant])``: the names
+Python calls them by, each with its kernel, its signature and, optionally, the Python
+function to compile in its place (say, a one-line call of the kernel, so that the build
+links numba's cached machine code); ``aot_prepare(state)``, when there is one, runs before
+a build.  Used by ``decimate`` (:mod:`trivsel.decimation`) and by the insertion methods
+(:mod:`trivsel.mesh.entries`, one module per method's driver).  :func:`kernels` gives:
 
 1. the extension module built before for this layout, these sources, this Python, numba
    and numpy, and this machine's architecture;
@@ -24,8 +29,8 @@ the same LLVM IR, without fast-math.  The module is compiled for the architectur
 generic CPU, so it also runs where one cache directory serves machines of different CPU
 models.  The extension module does not check the types of its arguments as numba's
 dispatcher does, so its file name carries the exact layout of the state it was built for
-(dtype, dimensions, contiguity and alignment of every array): a state of another layout
-finds no module and gets its own.
+(dtype, dimensions, contiguity and alignment of every array, the type of every scalar): a
+state of another layout finds no module and gets its own.
 
 Modules live in ``$NUMBA_CACHE_DIR/trivsel-aot`` when that is set, else in the package's
 ``__pycache__/aot`` (where numba keeps its cache), else in ``~/.cache/trivsel/aot``.
@@ -47,7 +52,7 @@ import tempfile
 import types
 from pathlib import Path
 
-__all__ = ["kernels", "cache_dir", "layout"]
+__all__ = ["kernels", "cache_dir", "layout", "is_jit"]
 
 log = logging.getLogger("trivsel")
 
@@ -75,14 +80,20 @@ def cache_dir() -> Path:
 
 
 def layout(state) -> str:
-    """The exact layout of a state (a named tuple of arrays) as numba types it: each field's
-    name, dtype, dimensions, contiguity, alignment and writability."""
-    parts = []
-    for name, a in zip(state._fields, state):
+    """The exact layout of a state (a named tuple of arrays, and of named tuples of scalars) as
+    numba types it: each array's name, dtype, dimensions, contiguity, alignment and
+    writability; each scalar's name and type."""
+    return ";".join(f"{name}:{_field_layout(a)}" for name, a in zip(state._fields, state))
+
+
+def _field_layout(a) -> str:
+    if hasattr(a, "flags") and hasattr(a, "ndim"):
         fl = a.flags
-        parts.append(f"{name}:{a.dtype.str}:{a.ndim}:{'C' if fl.c_contiguous else 'A'}"
-                     f":{int(fl.aligned)}:{int(fl.writeable)}")
-    return ";".join(parts)
+        return f"{a.dtype.str}:{a.ndim}:{'C' if fl.c_contiguous else 'A'}:{int(fl.aligned)}:{int(fl.writeable)}"
+    if isinstance(a, tuple):
+        return "(" + ",".join(f"{n}:{_field_layout(x)}" for n, x in zip(getattr(a, "_fields", range(len(a))), a)) + ")"
+    dtype = getattr(a, "dtype", None)  # a numpy scalar: its dtype, else the Python type
+    return dtype.str if dtype is not None else type(a).__name__
 
 
 def _package_version(name):
@@ -113,17 +124,18 @@ def _build_hash(module, sources) -> bytes:
     return h.digest()
 
 
-def _key(module, sources, state) -> str:
+def _key(module, sources, state, variant) -> str:
     h = hashlib.sha256(_build_hash(module, tuple(sources)))
-    h.update(layout(state).encode())
+    h.update(layout(state).encode() + b"\0" + str(variant).encode())
     return h.hexdigest()[:20]
 
 
-def _paths(module, sources, state):
+def _paths(module, sources, state, variant=None):
     """The extension module's name, its file and the file that records a failed build."""
     from importlib.machinery import EXTENSION_SUFFIXES
 
-    name = "_aot_" + module.rsplit(".", 1)[-1] + "_" + _key(module, sources, state)
+    stem = module.rsplit(".", 1)[-1] + (f"_{variant}" if variant else "")
+    name = "_aot_" + stem + "_" + _key(module, sources, state, variant)
     d = cache_dir()
     return name, d / (name + EXTENSION_SUFFIXES[0]), d / (name + ".failed")
 
@@ -135,9 +147,23 @@ def _import(name, path):
     return mod
 
 
-def _jit(module, state):
+def _exports(module, state, variant):
+    """``module``'s exports for ``state``: name -> (numba kernel, signature[, body to compile
+    ahead of time in its place, when that is not the kernel's own Python function])."""
     mod = importlib.import_module(module)
-    return types.SimpleNamespace(**{k: fn for k, (fn, _) in mod.aot_exports(_numba_type(state)).items()})
+    st = _numba_type(state)
+    return mod.aot_exports(st) if variant is None else mod.aot_exports(st, variant)
+
+
+def _jit(module, state, variant=None):
+    ns = types.SimpleNamespace(**{k: e[0] for k, e in _exports(module, state, variant).items()})
+    ns.JIT = True  # numba's own kernels, not an extension module
+    return ns
+
+
+def is_jit(kernels_) -> bool:
+    """Whether :func:`kernels` returned numba's just-in-time kernels (not an extension module)."""
+    return bool(getattr(kernels_, "JIT", False))
 
 
 def _numba_type(state):
@@ -146,9 +172,10 @@ def _numba_type(state):
     return typeof(state)
 
 
-def build(module, state, path):
+def build(module, state, path, variant=None):
     """Compile ``module``'s :func:`aot_exports` for the layout of ``state`` into the extension
-    module ``path`` (written whole or not at all)."""
+    module ``path`` (written whole or not at all).  ``module.aot_prepare(state)``, when the
+    module has it, runs first (say, to fix the signatures of the kernels the exports call)."""
     import warnings
 
     with warnings.catch_warnings():
@@ -159,20 +186,24 @@ def build(module, state, path):
         compiler = (os.environ.get("CC") or sysconfig.get_config_var("CC") or "cc").split()[0]
         if shutil.which(compiler) is None:
             raise OSError(f"no C compiler: {compiler!r} not found")
-    exports = importlib.import_module(module).aot_exports(_numba_type(state))
+    prepare = getattr(importlib.import_module(module), "aot_prepare", None)
+    if prepare is not None:
+        prepare(state)
+    exports = _exports(module, state, variant)
     path.parent.mkdir(parents=True, exist_ok=True)
     name = path.name.split(".")[0]
     with tempfile.TemporaryDirectory(prefix=name + "-", dir=path.parent) as tmp:
         cc = CC(name)
         cc.output_dir = tmp
         cc.verbose = False
-        for export, (fn, sig) in exports.items():
-            cc.export(export, sig)(fn.py_func)
+        for export, entry in exports.items():
+            body = entry[2] if len(entry) > 2 else entry[0].py_func
+            cc.export(export, entry[1])(body)
         cc.compile()
         os.replace(os.path.join(tmp, path.name), path)
 
 
-def kernels(module, sources, state, *, rebuild=False):
+def kernels(module, sources, state, *, variant=None, rebuild=False):
     """The kernels of ``module`` (its :func:`aot_exports`) for states of the layout of ``state``,
     as attributes: from the extension module built ahead of time, built now if need be, or
     numba's own (see the module's notes).
@@ -186,12 +217,15 @@ def kernels(module, sources, state, *, rebuild=False):
         module whose kernels or constants they use).
     state : NamedTuple of numpy arrays
         A state of the layout the kernels will be called with.
+    variant : str, optional
+        Passed on as ``aot_exports(state_type, variant)``, for a module whose exports
+        differ by variant (a method's driver, say); part of the extension module's name.
     rebuild : bool
         Build even if an earlier build failed (``trivsel compile``).
     """
     if not enabled():
-        return _jit(module, state)
-    name, path, failed = _paths(module, sources, state)
+        return _jit(module, state, variant)
+    name, path, failed = _paths(module, sources, state, variant)
     if path in _loaded:
         return _loaded[path]
     if rebuild and failed.exists():
@@ -199,7 +233,7 @@ def kernels(module, sources, state, *, rebuild=False):
     if not path.exists() and not failed.exists():
         log.info("compiling %s ahead of time (once per machine)", module)
         try:
-            build(module, state, path)
+            build(module, state, path, variant)
         except Exception as exc:  # noqa: BLE001 - any failure falls back to numba's JIT
             text = " ".join(str(exc).split())[:500] or type(exc).__name__
             log.warning("could not compile %s ahead of time (%s): using numba's just-in-time kernels", module, text)
@@ -214,4 +248,4 @@ def kernels(module, sources, state, *, rebuild=False):
             return _loaded[path]
         except ImportError as exc:
             log.warning("could not load %s (%s): using numba's just-in-time kernels", path, exc)
-    return _jit(module, state)
+    return _jit(module, state, variant)

@@ -5,7 +5,7 @@ The workflow, the benchmarks and CI depend on these names::
     trivsel reduce --function 4 --n 16 --fractions 0.5 0.2 0.1 --out DIR
     trivsel reduce INPUT [--array NAME] [--volume K] --fractions 0.5 0.2 0.1 --out DIR
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
-    trivsel compile [--method paper] [--part 0|1]
+    trivsel compile [--method paper] [--part 0|1|2]
     trivsel convert INPUT OUT.zarr [--chunks 64] [--array NAME] [--volume K]
     trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-- SNAKEMAKE ARGS]
 
@@ -72,13 +72,16 @@ def build_parser():
                        description="A reduction compiles its kernels on first use (once; they load "
                                    "from the cache afterwards).  --part 0 and --part 1 compile the two halves "
                                    "(swapping; insertion) in two processes side by side, as the workflow's "
-                                   "kernels rule does, then --part 2 the method's driver; without "
-                                   "--part, everything the method needs.")
+                                   "kernels rule does, then --part 2 the extension module that "
+                                   "reductions load without numba (the method's driver and all it "
+                                   "calls; numba's own driver without a C compiler or with "
+                                   "TRIVSEL_AOT=0); without --part, everything the method needs.")
     from .methods import METHODS
 
     k.add_argument("--method", default="paper", choices=list(METHODS))
     k.add_argument("--part", type=int, choices=[0, 1, 2],
-                   help="one part only: 0 swapping, 1 insertion, 2 the method's driver (default: all)")
+                   help="one part only: 0 swapping, 1 insertion, 2 the extension module with the "
+                        "method's driver (default: all)")
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
                        description="Cells are matched on their key columns and compared with "

@@ -12,22 +12,38 @@ Modules, in the order of their dependencies:
 * :mod:`~trivsel.mesh.swap` - data-dependent swapping and its memory;
 * :mod:`~trivsel.mesh.greedy`, :mod:`~trivsel.mesh.drivers` - the loops of the two methods;
 * :mod:`~trivsel.mesh.compile` - signature pinning and :func:`compile_kernels`;
+* :mod:`~trivsel.mesh.entries`, :mod:`~trivsel.mesh.entry_kernels` - the kernels a reduction
+  calls, compiled ahead of time (:mod:`trivsel.aot`);
 * :mod:`~trivsel.mesh.tetmesh` - :class:`TetMesh`, the Python face of it all;
 * :mod:`~trivsel.mesh.validation` - :func:`check_mesh`, the mesh-validity checker;
 * :mod:`~trivsel.mesh.cache` - numba's on-disk cache, stamped with all the package's sources.
+
+Importing the package, building a :class:`TetMesh` and running its reduction kernels from
+the extension module import no numba; the kernel modules (and :func:`compile_kernels`,
+:func:`check_mesh`) load it when first used.
 """
 
-from .cache import install as _install_cache
-
-_install_cache()  # before any kernel is defined
-
-from .compile import compile_kernels  # noqa: E402
-from .criteria import CRITERIA  # noqa: E402
-from .state import (ERR_DUPLICATE, ERR_LINK, ERR_POOLCAP, ERR_TETCAP, ERR_UNCOVERED,  # noqa: E402
+from .state import (CRITERIA, ERR_DUPLICATE, ERR_LINK, ERR_POOLCAP, ERR_TETCAP, ERR_UNCOVERED,  # noqa: F401
                     UNLIMITED_ROUNDS, make_state)
-from .tetmesh import MeshError, TetMesh, face_neighbours  # noqa: E402
-from .validation import MeshInvalid, check_mesh  # noqa: E402
+from .tetmesh import MeshError, TetMesh, face_neighbours  # noqa: F401
 
 __all__ = ["TetMesh", "MeshError", "ERR_TETCAP", "ERR_POOLCAP", "ERR_LINK", "ERR_UNCOVERED", "ERR_DUPLICATE",
            "CRITERIA", "UNLIMITED_ROUNDS", "compile_kernels", "check_mesh", "MeshInvalid", "make_state",
            "face_neighbours"]
+
+_LAZY = {"compile_kernels": "compile", "check_mesh": "validation", "MeshInvalid": "validation"}
+
+
+def __getattr__(name):
+    """The names whose modules import numba, loaded on first use."""
+    if name in _LAZY:
+        import importlib
+
+        value = getattr(importlib.import_module(f"{__name__}.{_LAZY[name]}"), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))

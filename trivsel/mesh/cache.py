@@ -8,8 +8,9 @@ of the others would load from the cache with the old callees and constants.
 So every kernel of the package is stamped with one hash of all the package's
 sources (and of :mod:`trivsel.predicates`): any change recompiles them all, as
 for a single module.  :func:`install` puts the locators below ahead of numba's
-own; it runs when :mod:`trivsel.mesh` is imported, before any kernel is
-defined.
+own.  The kernel modules take numba's ``njit`` from here, so the locators are in
+place before any kernel is defined; importing this module alone (for
+:func:`package_stamp` and the list of sources) does not import numba.
 """
 
 from __future__ import annotations
@@ -17,8 +18,6 @@ from __future__ import annotations
 import glob
 import hashlib
 import os
-
-from numba.core import caching
 
 _PKG_DIR = os.path.dirname(os.path.abspath(__file__))
 _SOURCES = sorted(glob.glob(os.path.join(_PKG_DIR, "*.py"))) + [
@@ -50,20 +49,32 @@ class _PackageStamp:
         return super().from_function(py_func, py_file)
 
 
-def _locator(name, legacy):
+def _locator(caching, name, legacy):
     base = getattr(caching, name, None) or getattr(caching, legacy)
     return type("Package" + name, (_PackageStamp, base), {})
 
 
-# numba's order: a user-provided cache directory, then __pycache__, then the user-wide one
-LOCATORS = [_locator("UserProvidedCacheLocator", "_UserProvidedCacheLocator"),
-            _locator("InTreeCacheLocator", "_InTreeCacheLocator"),
-            _locator("UserWideCacheLocator", "_UserWideCacheLocator")]
+LOCATORS = []  # made by install(), once
 
 
 def install():
     """Put the package's locators ahead of numba's own (once)."""
+    from numba.core import caching
+
+    if not LOCATORS:
+        # numba's order: a user-provided cache directory, then __pycache__, then the user-wide one
+        LOCATORS.extend([_locator(caching, "UserProvidedCacheLocator", "_UserProvidedCacheLocator"),
+                         _locator(caching, "InTreeCacheLocator", "_InTreeCacheLocator"),
+                         _locator(caching, "UserWideCacheLocator", "_UserWideCacheLocator")])
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl")
     classes = impl._locator_classes
     if classes[:len(LOCATORS)] != LOCATORS:
         classes[:0] = LOCATORS
+
+
+def njit(*args, **kwargs):
+    """numba's ``njit``, after :func:`install`: every kernel of the package is defined through it."""
+    install()
+    from numba import njit as _njit
+
+    return _njit(*args, **kwargs)

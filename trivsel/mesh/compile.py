@@ -83,10 +83,11 @@ def entry_signatures(S, kernel):
     ``kernel`` is a method's ``KERNEL`` (``"paper"`` or ``"greedy"``): which driver
     (:func:`~trivsel.mesh.drivers.run_insertions` or :func:`~trivsel.mesh.greedy.run_greedy`).
     Everything else a reduction runs is compiled into these kernels' machine code.
+    ``S`` is a state or its numba type.
     """
     from numba import typeof, types as nt
 
-    st = typeof(S)
+    st = S if isinstance(S, nt.Type) else typeof(S)
     i8, f8, b1 = nt.int64, nt.float64, nt.boolean
     v8, m8, f82 = nt.int64[::1], nt.int64[:, ::1], nt.float64[:, ::1]
     driver = ((greedy.run_greedy, (st, i8, f8, f8, v8)) if kernel == "greedy"
@@ -153,7 +154,10 @@ def compile_kernels(method="paper", part=None):
     load from the cache in ``__pycache__`` afterwards).  This splits the work into
     parts that share little, so that two processes fill the cache side by side:
     ``trivsel compile --part 0`` and ``--part 1`` at once, then ``--part 2``,
-    which finds everything but the drivers in the cache.
+    which finds everything but the drivers in the cache.  With kernels ahead of time
+    (:mod:`trivsel.mesh.entries`, the default), part 2 builds the extension module
+    that reductions load instead of numba's cache, from the kernels of parts 0 and 1
+    and the drivers' sources; once it is built, every part returns at once.
 
     Parameters
     ----------
@@ -171,12 +175,14 @@ def compile_kernels(method="paper", part=None):
         ``2``: the method's driver (:func:`~trivsel.mesh.drivers.run_insertions`
         or :func:`~trivsel.mesh.greedy.run_greedy`), the global pass and the point
         weights; run after 0 and 1 it only loads their kernels from the cache.
+        With kernels ahead of time: the extension module of all of them.
         ``None``: everything, in one process.
 
     Returns
     -------
     int
-        The number of (kernel, signature) pairs compiled or loaded.
+        The number of (kernel, signature) pairs compiled or loaded (the extension
+        module's exports when it was built; 0 when it was there already).
     """
     from numba import typeof
 
@@ -190,8 +196,18 @@ def compile_kernels(method="paper", part=None):
         return compile_decimation()
     if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
         return 0
+    from .. import aot
+    from . import entries
+
     ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
     S = make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
+    if aot.enabled():
+        if entries.built(S):  # what a reduction loads is there: nothing to compile
+            return 0
+        if part in (None, 2):  # the extension module, from the kernels parts 0 and 1 left in the cache
+            if not aot.is_jit(entries.kernels(S, rebuild=True)):
+                return len(entry_signatures(S, method))
+            # the build failed (logged): numba's own driver, as without ahead-of-time kernels
     st = typeof(S)
     helpers = helper_signatures(S)
     # cheap leaves first (every part), then each part's own subtree, callees first

@@ -19,14 +19,11 @@ the codes.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .geometry import _locate_at, _tet_data
-from .state import A_BEFORE, C_LASTM
+from .state import A_BEFORE, C_LASTM, CRIT_MAX, CRIT_RMS, CRIT_SSE, CRITERIA  # noqa: F401 (CRITERIA: the API)
 from .storage import _gather_at, _sort_into
-
-CRIT_RMS, CRIT_MAX, CRIT_SSE = 0, 1, 2
-CRITERIA = {"rms": CRIT_RMS, "max": CRIT_MAX, "sse": CRIT_SSE}
 
 #: Margin of :func:`_cannot_beat` against the rounding of the evaluated sums (a sum of m
 #: non-negative terms is exact to m * 2^-53 relative; m < 10^6 points per configuration)

@@ -9,7 +9,7 @@ piecewise-linear interpolant back (eqs. 13, 16, 19-20).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .geometry import _locate, _vol
 from .insertion import insert_point

@@ -15,7 +15,7 @@ quadruples); admissibility (positive volumes) and the change itself belong to
 
 from __future__ import annotations
 
-from numba import njit
+from .cache import njit
 
 from .geometry import EDGE_EVEN, FACE_IN, _sign
 from .storage import _other_index

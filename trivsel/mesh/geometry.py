@@ -12,7 +12,7 @@ an array out of the state costs a reference-count update per call.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from ..predicates import orient3d_float, orient3d_float_sign, orient3d_int
 

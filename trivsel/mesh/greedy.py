@@ -7,7 +7,7 @@ to the paper's curvature order; the priority queue is :mod:`trivsel.mesh.heap`.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .heap import _heap_pop
 from .insertion import insert_point

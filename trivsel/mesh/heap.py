@@ -10,7 +10,7 @@ rebuilt.
 
 from __future__ import annotations
 
-from numba import njit
+from .cache import njit
 
 from .state import C_HEAPN, C_HW
 

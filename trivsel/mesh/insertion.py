@@ -16,7 +16,7 @@ edges are handled alike (``new_hull``: the split hull faces stay hull faces).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .geometry import FACE_IN, _positive, _sign
 from .state import C_CASE1, C_ERROR, C_HW, C_NVERT, C_OSTAMP, ERR_DUPLICATE

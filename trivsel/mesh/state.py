@@ -29,6 +29,12 @@ import numpy as np
 #: Swap rounds (flips) per call that mean "until nothing improves" (``max_rounds``'s default)
 UNLIMITED_ROUNDS = 100000
 
+# ----------------------------------------------------------------------------- swap criteria (S.opt.criterion)
+CRIT_RMS, CRIT_MAX, CRIT_SSE = 0, 1, 2  # see trivsel.mesh.criteria
+CRITERIA = {"rms": CRIT_RMS, "max": CRIT_MAX, "sse": CRIT_SSE}
+#: Words of a configuration's key in swap's memory (trivsel.mesh.swap)
+KEYLEN = 5
+
 # ----------------------------------------------------------------------------- counters (S.ctr)
 C_HW = 0  # high-water mark of tet slots handed out
 C_NFREE = 1  # tet slots on the free list
@@ -170,9 +176,6 @@ def make_state(points, values, ijk=None, *, criterion="rms", vertices_in_error=T
     -------
     MeshState
     """
-    from .criteria import CRIT_SSE, CRITERIA
-    from .swap import _KEYLEN
-
     # C-contiguous and writable, so that every state has the same numba type
     P = np.require(points, np.float64, ["C", "W"])
     F = np.require(values, np.float64, ["C", "W"])
@@ -215,7 +218,7 @@ def make_state(points, values, ijk=None, *, criterion="rms", vertices_in_error=T
         opt=opt, acc=np.zeros(N_SUMS), omark=np.zeros(cap, np.int64),
         tbest=np.empty(cap, np.int32), tbestr=np.zeros(cap), tver=np.zeros(cap, np.int64),
         hkey=np.zeros(2 * cap), htet=np.zeros(2 * cap, np.int64), hver=np.zeros(2 * cap, np.int64), cand=cand,
-        mkey=np.full((mrows, _KEYLEN), -1, np.int64), mval=np.empty((mrows, 2)))
+        mkey=np.full((mrows, KEYLEN), -1, np.int64), mval=np.empty((mrows, 2)))
     if pin:
         from .compile import pin_signatures
 

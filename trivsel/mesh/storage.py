@@ -17,7 +17,7 @@ when full (:func:`_compact_pool`).
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .geometry import _locate_at, _tet_data
 from .heap import _set_best

@@ -43,15 +43,15 @@ equal up to rounding.
 from __future__ import annotations
 
 import numpy as np
-from numba import njit
+from .cache import njit
 
 from .criteria import _cannot_beat, _evaluate_at
 from .flips import FLIP22, FLIP23, FLIP32, FLIP44, _config22_at, _config23_at, _edge_ring, quads32, quads44
 from .geometry import EDGES, _positive_at
-from .state import C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_MEMHITS, C_OSTAMP, C_ROUNDCAP
+from .state import C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_MEMHITS, C_OSTAMP, C_ROUNDCAP, KEYLEN
 from .storage import _copy1, _copy2, _replace
 
-_KEYLEN = 5  # words of a configuration's key
+_KEYLEN = KEYLEN  # words of a configuration's key
 _CACHE_MAX = 1 << 18  # entries of a call's table; a larger swap (the global pass) evaluates without caching
 _RUN_PROBES = 8  # slots a key may occupy in the run-long table (a power of two)
 

@@ -4,17 +4,28 @@ from __future__ import annotations
 
 import numpy as np
 
-from .criteria import _evaluate, criterion_sum
-from .drivers import global_pass, point_weights, residuals, run_insertions
-from .flips import config23, edge_ring, edge_ring_open, quads32, quads44
-from .geometry import _orient, _positive
-from .greedy import greedy_next, run_greedy
-from .heap import _heap_rebuild
-from .insertion import cone_from_hull, insert_point
+import functools
+import types
+
+from .entries import kernels
 from .state import (A_SSE, C_ABOVE, C_CASE1, C_CASE2, C_CASE3, C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_FLIP32, C_FLIP44,
                     C_HW, C_MEMHITS, C_NVERT, C_ROUNDCAP, ERROR_MESSAGES, copy_state, make_state)
-from .storage import _alloc, _replace, fill_buckets
-from .swap import swap
+
+
+@functools.lru_cache(maxsize=None)
+def _nb():
+    """The numba kernels of the step-by-step operations (flips, evaluations, the greedy
+    queue), which a reduction does not call: imported, with numba, on first use."""
+    from .compile import pin_signatures
+    from .criteria import _evaluate, criterion_sum
+    from .drivers import run_insertions
+    from .flips import config23, edge_ring, edge_ring_open, quads32, quads44
+    from .geometry import _orient, _positive
+    from .greedy import greedy_next, run_greedy
+    from .heap import _heap_rebuild
+    from .storage import _replace
+
+    return types.SimpleNamespace(**locals())
 
 
 class MeshError(RuntimeError):
@@ -55,8 +66,15 @@ class TetMesh:
     """
 
     def __init__(self, points, values, ijk=None, **options):
-        self.S = make_state(points, values, ijk, **options)
+        self.S = make_state(points, values, ijk, pin=False, **options)
         self.options = options
+        # the kernels a reduction calls: ahead of time or numba's own (trivsel.mesh.entries)
+        self._k = kernels(self.S)
+
+    def _jit(self):
+        """The state, after pinning the helpers that the other (numba) kernels call."""
+        _nb().pin_signatures(self.S)
+        return self.S
 
     # -- state views
     @property
@@ -117,39 +135,39 @@ class TetMesh:
         """Install an initial triangulation (positively oriented tets) and fill its buckets."""
         tets = np.asarray(tets, np.int64)
         nbr = face_neighbours(tets)
-        ids = np.array([_alloc(self.S) for _ in range(len(tets))], np.int64)
+        ids = np.array([self._k._alloc(self.S) for _ in range(len(tets))], np.int64)
         self._raise_on_error()
         self.S.tets[ids] = tets
         self.S.nbr[ids] = np.where(nbr >= 0, ids[np.maximum(nbr, 0)], -1)
         verts = np.unique(tets)
         self.S.isvert[verts] = 1
         self.S.ctr[C_NVERT] = len(verts)
-        fill_buckets(self.S, ids)
+        self._k.fill_buckets(self.S, ids)
         self._raise_on_error()
         return ids
 
     def insert(self, p):
         """Insert point p (cases i-iii); returns (case 1/2/3, new tet ids)."""
-        case, ids = insert_point(self.S, int(p))
+        case, ids = self._k.insert_point(self.S, int(p))
         self._raise_on_error()
         return case, ids
 
     def cone(self, p):
         """Join p to every hull face (the first insertion); empty if p is not strictly inside."""
-        ids = cone_from_hull(self.S, int(p))
+        ids = self._k.cone_from_hull(self.S, int(p))
         self._raise_on_error()
         return ids
 
     def swap(self, ids, with_neighbours=True):
         """Data-dependent swapping from the tets ``ids`` (and their neighbours); returns the flips made."""
         ids = np.ascontiguousarray(ids, np.int64)
-        n = swap(self.S, ids, len(ids), with_neighbours, self.S.opt.max_rounds)
+        n = self._k.swap(self.S, ids, len(ids), bool(with_neighbours), self.S.opt.max_rounds)
         self._raise_on_error()
         return n
 
     def global_pass(self):
         """The final swap over all tets, until nothing improves; returns the flips made."""
-        n = global_pass(self.S)
+        n = self._k.global_pass(self.S)
         self._raise_on_error()
         return n
 
@@ -157,7 +175,7 @@ class TetMesh:
         """Apply the 2-3 flip of tet t over its face i if admissible (and improving unless force)."""
         old = np.empty(4, np.int64)
         newq = np.empty((4, 4), np.int64)
-        if not config23(self.S, int(t), int(i), old, newq) or not _positive(self.S, newq, 3):
+        if not _nb().config23(self._jit(), int(t), int(i), old, newq) or not _nb()._positive(self.S, newq, 3):
             return None
         return self._apply(old, 2, newq, 3, force)
 
@@ -166,16 +184,16 @@ class TetMesh:
         old = np.empty(4, np.int64)
         ring = np.empty(4, np.int64)
         newq = np.empty((4, 4), np.int64)
-        k = edge_ring(self.S, int(t), int(a), int(b), old, ring)
+        k = _nb().edge_ring(self._jit(), int(t), int(a), int(b), old, ring)
         if k == 3:
-            quads32(int(a), int(b), ring, newq)
+            _nb().quads32(int(a), int(b), ring, newq)
             nn = 2
         elif k == 4:
-            quads44(int(a), int(b), ring, int(alt), newq)
+            _nb().quads44(int(a), int(b), ring, int(alt), newq)
             nn = 4
         else:
             return None
-        if not _positive(self.S, newq, nn):
+        if not _nb()._positive(self.S, newq, nn):
             return None
         return self._apply(old, k, newq, nn, force)
 
@@ -184,11 +202,11 @@ class TetMesh:
         old = np.empty(2, np.int64)
         ring = np.empty(5, np.int64)
         newq = np.empty((4, 4), np.int64)
-        k = edge_ring_open(self.S, int(t), int(a), int(b), old, ring)
-        if k != 2 or _orient(self.S, int(a), int(b), int(ring[0]), int(ring[2])) != 0:
+        k = _nb().edge_ring_open(self._jit(), int(t), int(a), int(b), old, ring)
+        if k != 2 or _nb()._orient(self.S, int(a), int(b), int(ring[0]), int(ring[2])) != 0:
             return None
-        quads32(int(a), int(b), ring, newq)
-        if not _positive(self.S, newq, 2):
+        _nb().quads32(int(a), int(b), ring, newq)
+        if not _nb()._positive(self.S, newq, 2):
             return None
         return self._apply(old, 2, newq, 2, force, new_hull=True)
 
@@ -196,34 +214,42 @@ class TetMesh:
         """The criterion sums (before, after) of replacing the tets ``old`` by the quadruples ``newq``."""
         old = np.ascontiguousarray(old, np.int64)
         newq = np.ascontiguousarray(newq, np.int64)
-        return _evaluate(self.S, old, len(old), newq, len(newq), 0.0, -np.inf)
+        return _nb()._evaluate(self._jit(), old, len(old), newq, len(newq), 0.0, -np.inf)
 
     def _apply(self, old, nold, newq, nn, force, new_hull=False):
         """Replace old by newq if the criterion sum decreases (or if ``force``); the new ids or None."""
         if not force:
-            before, after = _evaluate(self.S, old, nold, newq, nn, 0.0, -np.inf)
+            before, after = _nb()._evaluate(self._jit(), old, nold, newq, nn, 0.0, -np.inf)
             if not after < before:
                 return None
-        ids = _replace(self.S, old, nold, newq, nn, new_hull)
+        ids = _nb()._replace(self._jit(), old, nold, newq, nn, new_hull)
         self._raise_on_error()
         return ids
 
     def run(self, order, start, stop, tol_rms=-1.0):
         """Insert ``order[start:stop]``, each followed by swapping; returns the position reached."""
-        k = run_insertions(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop), float(tol_rms),
+        k = self._driver("run_insertions")(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop), float(tol_rms),
                            float(self.S.values.shape[0]))
         self._raise_on_error()
         return int(k)
 
+    def _driver(self, name):
+        """A method's driver: the other method's is not in this mesh's extension module."""
+        fn = getattr(self._k, name, None)
+        if fn is None:
+            self._jit()
+            fn = getattr(_nb(), name)
+        return fn
+
     def greedy_next(self):
         """The next greedy candidate (largest residual), without inserting it; -1 if none."""
-        p = greedy_next(self.S)
-        _heap_rebuild(self.S)  # put the popped entry back
+        p = _nb().greedy_next(self._jit())
+        _nb()._heap_rebuild(self.S)  # put the popped entry back
         return int(p)
 
     def run_greedy(self, stop_nvert, tol_rms=-1.0):
         log = np.empty(max(int(stop_nvert) - int(self.S.ctr[C_NVERT]), 0) + 1, np.int64)
-        k = run_greedy(self.S, int(stop_nvert), float(tol_rms), float(self.S.values.shape[0]), log)
+        k = self._driver("run_greedy")(self.S, int(stop_nvert), float(tol_rms), float(self.S.values.shape[0]), log)
         self._raise_on_error()
         return log[:k].copy()
 
@@ -232,13 +258,13 @@ class TetMesh:
         N = self.S.values.shape[0]
         verts = np.empty((N, 4), np.int64)
         w = np.empty((N, 4))
-        point_weights(self.S, verts, w)
+        self._k.point_weights(self.S, verts, w)
         return verts, w
 
     def residuals(self):
         """Residuals f - L at all original points, and the continuity defect."""
         out = np.zeros(self.S.values.shape[0])
-        worst = residuals(self.S, out)
+        worst = self._k.residuals(self.S, out)
         return out, worst
 
     def copy(self):
@@ -246,12 +272,13 @@ class TetMesh:
         other = TetMesh.__new__(TetMesh)
         other.S = copy_state(self.S)
         other.options = dict(self.options)
+        other._k = self._k
         return other
 
     def criterion_sum(self):
         """The quantity the swaps lower (see :func:`trivsel.mesh.criteria.criterion_sum`)."""
         ids = self.live_ids()
-        return criterion_sum(self.S.opt.criterion, self.S.tsse[ids], self.S.tmax[ids], self.S.tcnt[ids],
+        return _nb().criterion_sum(self.S.opt.criterion, self.S.tsse[ids], self.S.tmax[ids], self.S.tcnt[ids],
                              self.S.resid)
 
     @property

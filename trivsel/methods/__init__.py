@@ -11,7 +11,8 @@ A method is a module that defines
     whether the mesh keeps the per-tetrahedron candidate queue of error-driven
     insertion (:class:`~trivsel.mesh.TetMesh`'s ``greedy``);
 ``KERNEL``
-    which compiled driver :func:`trivsel.mesh.compile_kernels` prepares for it;
+    which driver :func:`trivsel.mesh.compile_kernels` compiles (into the extension module of
+    :mod:`trivsel.mesh.entries`) for it;
 ``needs_curvature(options) -> bool``
     whether :func:`rank` needs the curvature graph of all points (on scattered data
     that is a Delaunay triangulation of every point);

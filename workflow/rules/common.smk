@@ -191,7 +191,7 @@ CODE_GOLDEN = source_hash("regression.py")
 
 
 def kernel_driver_marker(wildcards):
-    """`trivsel compile --part 2` (the drivers) of the method of the run's variant."""
+    """`trivsel compile --part 2` (the extension module) of the method of the run's variant."""
     return f"results/kernels/{VARIANTS[wildcards.variant].method}_part2.txt"
 
 

@@ -2,7 +2,8 @@
 # largest fraction; the smaller fractions are snapshots written on the way
 # (errors.csv has one row per fraction, mesh_<fraction>.vtu one mesh per fraction).
 # Before them, for each method of the sweep: kernels (parts 0 and 1, side by side), then
-# kernels_driver (part 2); the reductions wait for the driver's marker.
+# kernels_driver (part 2: the extension module the reductions load); the reductions wait for
+# its marker.
 # The variant's flags are trivsel.Options.cli_args() (workflow/rules/common.smk).
 
 
@@ -34,8 +35,9 @@ rule kernels:
 
 
 rule kernels_driver:
-    """Compile the reduction drivers of one method (trivsel compile --part 2), which call
-    the kernels of both halves: after both are in the cache."""
+    """Build the extension module of the kernels a reduction of one method calls
+    (trivsel compile --part 2: the drivers and everything they call, which links the two
+    halves from numba's cache; numba's own drivers where no module can be built)."""
     input:
         expand("results/kernels/{{method}}_part{part}.txt", part=[0, 1]),
     output:

@@ -1,4 +1,5 @@
-"""Rules kernels and kernels_driver: one part of `trivsel compile` (numba's on-disk cache), then a marker."""
+"""Rules kernels and kernels_driver: one part of `trivsel compile` (numba's on-disk cache, then the
+extension module of trivsel.aot), then a marker."""
 
 import sys
 from pathlib import Path
