@@ -20,10 +20,7 @@ first run.
 
 from __future__ import annotations
 
-import numpy as np
-
 from . import criteria, drivers, flips, geometry, greedy, heap, insertion, storage, swap
-from .state import make_state
 
 _PINNED = set()  # state types the helpers are compiled for
 _FROM_CACHE = set()  # (state type, method kernel) whose entry kernels were all in the cache
@@ -199,8 +196,7 @@ def compile_kernels(method="paper", part=None):
     from .. import aot
     from . import entries
 
-    ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
-    S = make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
+    S = entries.probe_state(method)
     if aot.enabled():
         if entries.built(S):  # what a reduction loads is there: nothing to compile
             return 0

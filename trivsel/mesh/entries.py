@@ -54,6 +54,17 @@ def kernels(S, *, rebuild=False):
     return k
 
 
+def probe_state(method):
+    """The smallest state of a method (a tetrahedron's four corners on a grid): the layout
+    every grid or scattered reduction's state has, for compiling and building."""
+    import numpy as np
+
+    from .state import make_state
+
+    ijk = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1]], np.int64)
+    return make_state(ijk.astype(np.float64), np.zeros(4), ijk, pin=False, greedy=method == "greedy")
+
+
 def built(S) -> bool:
     """Whether the extension module for the layout and method of ``S`` is there (and may be
     loaded without building anything)."""
