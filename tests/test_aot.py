@@ -235,6 +235,22 @@ def test_insertion_kernels_ahead_of_time_give_numbas_results_to_the_bit(monkeypa
         assert np.array_equal(a, b)
 
 
+def test_insertion_kernels_fall_back_to_numbas_when_no_module_can_be_built(monkeypatch, tmp_path, caplog):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))  # no module there (numba's own cache is unchanged)
+
+    def no_compiler(module, state, path, variant=None):
+        raise OSError("no C compiler: 'cc' not found")
+
+    monkeypatch.setattr(aot, "build", no_compiler)
+    with caplog.at_level(logging.WARNING, logger="trivsel"):
+        ours = _mesh_run("paper", 4, 6, dict(fractions=[0.3, 0.1]))
+    assert "could not compile trivsel.mesh.entry_kernels ahead of time (no C compiler" in caplog.text
+    assert len(list(tmp_path.glob("trivsel-aot/*.failed"))) == 1
+    monkeypatch.setenv("TRIVSEL_AOT", "0")
+    for a, b in zip(ours, _mesh_run("paper", 4, 6, dict(fractions=[0.3, 0.1]))):
+        assert np.array_equal(a, b)
+
+
 def test_the_mesh_state_layout_names_its_options_types():
     """The options are scalars in the state: their types are part of the layout (numba types
     a Python bool, int and float differently), and so of the module's name."""

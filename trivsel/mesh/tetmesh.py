@@ -2,10 +2,10 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 import functools
 import types
+
+import numpy as np
 
 from .entries import kernels
 from .state import (A_SSE, C_ABOVE, C_CASE1, C_CASE2, C_CASE3, C_ERROR, C_EVALS, C_FLIP22, C_FLIP23, C_FLIP32, C_FLIP44,
