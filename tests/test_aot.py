@@ -117,6 +117,30 @@ def test_a_damaged_module_is_not_loaded(monkeypatch, tmp_path, caplog):
     assert dec.run(20) == 0
 
 
+def test_a_build_keeps_only_the_newest_modules_of_its_library(monkeypatch, tmp_path):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    data = sample_grid(4, 6)
+    S = dm.new_state(data.ijk, data.shape, data.values)
+    name, path, _ = aot._paths(dm.KERNELS, dm.KERNEL_SOURCES, S)
+    d = path.parent
+    d.mkdir(parents=True)
+    stem, suffix = name.rsplit("_", 1)[0], path.name.split(".", 1)[1]
+    old = [d / f"{stem}_{i:020x}.{suffix}" for i in range(6)]  # earlier sources, oldest first
+    for i, p in enumerate(old):
+        p.write_bytes(b"old")
+        os.utime(p, (1000 + i, 1000 + i))
+    others = [d / f"_aot_other_kernels_{0:020x}.{suffix}",  # another library
+              d / f"{stem}_paper_{0:020x}.{suffix}",  # another variant
+              d / f"{stem}_{1:020x}.failed"]
+    for p in others:
+        p.write_bytes(b"x")
+    monkeypatch.setattr(aot, "build", lambda module, state, p, variant=None: p.write_bytes(b"new"))
+    monkeypatch.setattr(aot, "_import", lambda name, p: "the new module")
+    assert aot.kernels(dm.KERNELS, dm.KERNEL_SOURCES, S) == "the new module"
+    left = {p.name for p in d.iterdir()}
+    assert left == {path.name} | {p.name for p in old[-(aot.KEEP - 1):]} | {p.name for p in others}
+
+
 @pytest.mark.parametrize("env", [{"TRIVSEL_AOT": "0"}, {"NUMBA_DISABLE_JIT": "1"}, {"TRIVSEL_AOT": "off"}])
 def test_switched_off(monkeypatch, env):
     for k, v in env.items():

@@ -33,7 +33,10 @@ dispatcher does, so its file name carries the exact layout of the state it was b
 state of another layout finds no module and gets its own.
 
 Modules live in ``$NUMBA_CACHE_DIR/trivsel-aot`` when that is set, else in the package's
-``__pycache__/aot`` (where numba keeps its cache), else in ``~/.cache/trivsel/aot``.
+``__pycache__/aot`` (where numba keeps its cache), else in ``~/.cache/trivsel/aot``.  Each
+change of the sources or versions builds a new module (about 1 MB), so a build keeps the
+:data:`KEEP` newest modules of its library and variant and deletes the older ones (a state
+layout or a Python still in use rebuilds its own if it was among them).
 """
 
 from __future__ import annotations
@@ -58,6 +61,8 @@ log = logging.getLogger("trivsel")
 
 _PKG_DIR = Path(__file__).resolve().parent
 _loaded: dict = {}
+#: Modules of one library and variant kept in the cache directory (the newest; see the notes)
+KEEP = 4
 
 
 def enabled() -> bool:
@@ -138,6 +143,30 @@ def _paths(module, sources, state, variant=None):
     name = "_aot_" + stem + "_" + _key(module, sources, state, variant)
     d = cache_dir()
     return name, d / (name + EXTENSION_SUFFIXES[0]), d / (name + ".failed")
+
+
+def _prune(path, keep=None):
+    """Delete all but the ``keep`` (default :data:`KEEP`) newest modules of ``path``'s library and
+    variant: the files named as ``path`` but for the hash."""
+    import re
+
+    keep = KEEP if keep is None else keep
+    name, suffix = path.name.split(".", 1)
+    pattern = re.compile(re.escape(name.rsplit("_", 1)[0]) + r"_[0-9a-f]{20}\." + re.escape(suffix) + "$")
+    found = []
+    for p in path.parent.iterdir():
+        if pattern.match(p.name):
+            try:
+                found.append((p.stat().st_mtime, p))
+            except OSError:
+                pass
+    found.sort(reverse=True)
+    for _, p in found[keep:]:
+        if p != path:
+            try:
+                p.unlink()  # a process that has it loaded keeps its mapping
+            except OSError:
+                pass
 
 
 def _import(name, path):
@@ -234,6 +263,7 @@ def kernels(module, sources, state, *, variant=None, rebuild=False):
         log.info("compiling %s ahead of time (once per machine)", module)
         try:
             build(module, state, path, variant)
+            _prune(path)
         except Exception as exc:  # noqa: BLE001 - any failure falls back to numba's JIT
             text = " ".join(str(exc).split())[:500] or type(exc).__name__
             log.warning("could not compile %s ahead of time (%s): using numba's just-in-time kernels", module, text)
