@@ -92,7 +92,9 @@ def layout(state) -> str:
 
 
 def _field_layout(a) -> str:
-    if hasattr(a, "flags") and hasattr(a, "ndim"):
+    import numpy as np
+
+    if isinstance(a, np.ndarray):
         fl = a.flags
         return f"{a.dtype.str}:{a.ndim}:{'C' if fl.c_contiguous else 'A'}:{int(fl.aligned)}:{int(fl.writeable)}"
     if isinstance(a, tuple):

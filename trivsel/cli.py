@@ -214,24 +214,13 @@ def _read_triangles(path):
     return tris
 
 
-def _module_built(method):
-    """Whether the extension module of an insertion method's kernels is built (trivsel.aot)."""
-    from . import aot
-    from .mesh import entries
-
-    return aot.enabled() and entries.built(entries.probe_state(method))
-
-
 def _cmd_compile(a):
     import time
 
-    t0 = time.perf_counter()
-    if a.method != "decimate" and _module_built(a.method):
-        n = 0  # nothing to compile, found without importing numba and the kernels
-    else:
-        from .mesh import compile_kernels
+    from .mesh import compile_kernels
 
-        n = compile_kernels(a.method, a.part)
+    t0 = time.perf_counter()
+    n = compile_kernels(a.method, a.part)
     part = "all parts" if a.part is None else f"part {a.part}"
     print(f"compiled or loaded {n} kernel signatures ({a.method}, {part}) in {time.perf_counter() - t0:.1f} s")
     return 0

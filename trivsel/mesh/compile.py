@@ -15,12 +15,11 @@ pinned signature (int64 indices, :func:`pin_signatures`), numba converts the
 arguments at the call instead.  Pinning runs in
 :func:`~trivsel.mesh.state.make_state` (once per state type), so ``import
 trivsel`` stays cheap; each signature comes from the on-disk cache after the
-first run.
+first run.  The kernel modules (and numba) are imported by the functions that
+need them, so :func:`compile_kernels` finds a built extension module without them.
 """
 
 from __future__ import annotations
-
-from . import criteria, drivers, flips, geometry, greedy, heap, insertion, storage, swap
 
 _PINNED = set()  # state types the helpers are compiled for
 _FROM_CACHE = set()  # (state type, method kernel) whose entry kernels were all in the cache
@@ -30,6 +29,8 @@ def helper_signatures(S):
     """The internal helpers and their one signature (int64 indices), callees before
     callers, for the state type of ``S``."""
     from numba import typeof, types as nt
+
+    from . import criteria, flips, geometry, heap, storage, swap
 
     st = typeof(S)
     i8, b1, f8 = nt.int64, nt.boolean, nt.float64
@@ -84,6 +85,8 @@ def entry_signatures(S, kernel):
     """
     from numba import typeof, types as nt
 
+    from . import drivers, greedy, insertion, storage, swap
+
     st = S if isinstance(S, nt.Type) else typeof(S)
     i8, f8, b1 = nt.int64, nt.float64, nt.boolean
     v8, m8, f82 = nt.int64[::1], nt.int64[:, ::1], nt.float64[:, ::1]
@@ -115,6 +118,8 @@ def pin_signatures(S):
     """
     from numba import typeof
 
+    from . import swap
+
     if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: plain Python functions
         return
     st = typeof(S)
@@ -131,16 +136,34 @@ def pin_signatures(S):
     _PINNED.add(st)
 
 
-# The pinned helpers that only swapping uses (part 0 of compile_kernels; _evaluate is
-# its wrapper for TetMesh)
-_SWAP_ONLY = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.quads32, flips.quads44,
-              flips._config23_at, flips._config22_at, criteria._cannot_beat, criteria._evaluate_at,
-              criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store)
-_LEAVES = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
-           storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)
-# The entry kernels of insertion (part 1 of compile_kernels); the others are part 2's
-_INSERTION = (storage._alloc, storage.fill_buckets, drivers.residuals, insertion.insert_point,
-              insertion.cone_from_hull)
+def _plan(S, method, part, helpers):
+    """What ``part`` of :func:`compile_kernels` compiles, in order: (kernel, signature), from the
+    pinned ``helpers`` (:func:`helper_signatures`) and the entry kernels."""
+    from . import criteria, drivers, flips, geometry, heap, insertion, storage, swap
+
+    # the pinned helpers that only swapping uses (part 0; _evaluate is its wrapper for TetMesh)
+    swap_only = (swap._push_unique, swap._with_room, flips._edge_opposite, flips.quads32, flips.quads44,
+                 flips._config23_at, flips._config22_at, criteria._cannot_beat, criteria._evaluate_at,
+                 criteria._evaluate, swap._config_key, swap._cache_slot, swap._cache_store)
+    cheap = (geometry._sign, geometry._vol, criteria._crit, storage._other_index, storage._copy1, storage._copy2,
+             storage._sort_into, storage._gather_at, storage._gather, geometry._positive_at, geometry._positive)
+    # the entry kernels of insertion (part 1); the others are part 2's
+    inserting = (storage._alloc, storage.fill_buckets, drivers.residuals, insertion.insert_point,
+                 insertion.cone_from_hull)
+    # cheap leaves first (every part), then each part's own subtree, callees first
+    leaves = [h for h in helpers if h[0] in cheap]
+    replace = [h for h in helpers if h[0] in (heap._set_best, storage._replace)]
+    swapping = [h for h in helpers if h[0] in swap_only] + replace + [h for h in helpers if h[0] is swap.swap]
+    called = [h for h in entry_signatures(S, method) if h[0] is not swap.swap]
+    insertion_ = [h for h in called if h[0] in inserting]
+    driving = [h for h in called if h[0] not in inserting]  # the driver, the global pass, the point weights
+    if part == 0:
+        return leaves + swapping
+    if part == 1:
+        return leaves + replace + insertion_
+    return leaves + swapping + insertion_ + driving
+
+
 PARTS = (0, 1, 2)
 
 
@@ -181,8 +204,6 @@ def compile_kernels(method="paper", part=None):
         The number of (kernel, signature) pairs compiled or loaded (the extension
         module's exports when it was built; 0 when it was there already).
     """
-    from numba import typeof
-
     if method not in ("paper", "greedy", "decimate"):
         raise ValueError(f"unknown method {method!r}: choose 'paper', 'greedy' or 'decimate'")
     if part not in (None,) + PARTS:
@@ -191,34 +212,25 @@ def compile_kernels(method="paper", part=None):
         from ..decimation import compile_kernels as compile_decimation
 
         return compile_decimation()
-    if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
-        return 0
     from .. import aot
     from . import entries
 
     S = entries.probe_state(method)
-    if aot.enabled():
-        if entries.built(S):  # what a reduction loads is there: nothing to compile
-            return 0
-        if part in (None, 2):  # the extension module, from the kernels parts 0 and 1 left in the cache
-            if not aot.is_jit(entries.kernels(S, rebuild=True)):
-                return len(entry_signatures(S, method))
-            # the build failed (logged): numba's own driver, as without ahead-of-time kernels
+    if aot.enabled() and entries.built(S):  # what a reduction loads is there, found without numba
+        return 0
+    from numba import typeof
+
+    from . import swap
+
+    if not hasattr(swap.swap, "disable_compile"):  # NUMBA_DISABLE_JIT=1: nothing to compile
+        return 0
+    if aot.enabled() and part in (None, 2):  # the extension module, from what parts 0 and 1 left in the cache
+        if not aot.is_jit(entries.kernels(S, rebuild=True)):
+            return len(entry_signatures(S, method))
+        # the build failed (logged): numba's own driver, as without ahead-of-time kernels
     st = typeof(S)
     helpers = helper_signatures(S)
-    # cheap leaves first (every part), then each part's own subtree, callees first
-    leaves = [h for h in helpers if h[0] in _LEAVES]
-    replace = [h for h in helpers if h[0] in (heap._set_best, storage._replace)]
-    swapping = [h for h in helpers if h[0] in _SWAP_ONLY] + replace + [h for h in helpers if h[0] is swap.swap]
-    entries = [h for h in entry_signatures(S, method) if h[0] is not swap.swap]
-    insertion_ = [h for h in entries if h[0] in _INSERTION]
-    driving = [h for h in entries if h[0] not in _INSERTION]  # the driver, the global pass, the point weights
-    if part == 0:
-        plan = leaves + swapping
-    elif part == 1:
-        plan = leaves + replace + insertion_
-    else:
-        plan = leaves + swapping + insertion_ + driving
+    plan = _plan(S, method, part, helpers)
     pinned = {fn for fn, _ in helpers}
     for fn, sig in plan:
         if fn in pinned:

@@ -4,8 +4,7 @@
 from __future__ import annotations
 
 from .compile import _pin, entry_signatures, helper_signatures
-from .drivers import global_pass, point_weights, residuals, run_insertions
-from .greedy import run_greedy
+from .drivers import residuals
 from .insertion import cone_from_hull, insert_point
 from .storage import _alloc, fill_buckets
 from .swap import swap
@@ -40,9 +39,6 @@ def _residuals_export(S, out):
 
 _BODIES = {swap: _swap_export, insert_point: _insert_point_export, cone_from_hull: _cone_from_hull_export,
            _alloc: _alloc_export, fill_buckets: _fill_buckets_export, residuals: _residuals_export}
-_NAMES = {run_insertions: "run_insertions", run_greedy: "run_greedy", global_pass: "global_pass",
-          point_weights: "point_weights", swap: "swap", insert_point: "insert_point",
-          cone_from_hull: "cone_from_hull", _alloc: "_alloc", fill_buckets: "fill_buckets", residuals: "residuals"}
 
 
 def aot_exports(state_type, variant):
@@ -54,7 +50,7 @@ def aot_exports(state_type, variant):
     out = {}
     for fn, sig in entry_signatures(state_type, variant):
         body = _BODIES.get(fn)
-        out[_NAMES[fn]] = (fn, sig) if body is None else (fn, sig, body)
+        out[fn.__name__] = (fn, sig) if body is None else (fn, sig, body)
     return out
 
 

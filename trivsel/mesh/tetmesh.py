@@ -228,8 +228,8 @@ class TetMesh:
 
     def run(self, order, start, stop, tol_rms=-1.0):
         """Insert ``order[start:stop]``, each followed by swapping; returns the position reached."""
-        k = self._driver("run_insertions")(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop), float(tol_rms),
-                           float(self.S.values.shape[0]))
+        k = self._driver("run_insertions")(self.S, np.ascontiguousarray(order, np.int64), int(start), int(stop),
+                                           float(tol_rms), float(self.S.values.shape[0]))
         self._raise_on_error()
         return int(k)
 
