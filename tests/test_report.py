@@ -234,6 +234,13 @@ def test_figures_from_fabricated_meshes(tmp_path):
         img = mpimg.imread(p)
         assert img.shape[0] > 300 and img.shape[1] > 500
         assert img[..., :3].std() > 0.05  # not blank
+    # the 3-D panels are placed pixel for pixel in the four cells of the 2 x 2 layout
+    img = mpimg.imread(png3)[..., :3]
+    assert img.shape[:2] == (1232, 1474)  # (5.2 * 2 + 0.8) x (6.2 * 2 + 1.0) inches at 110 dpi
+    for rows in (slice(140, 600), slice(660, 1200)):
+        for cols in (slice(20, 640), slice(660, 1280)):
+            cell = img[rows, cols]
+            assert (cell.min(axis=-1) < 0.5).mean() > 0.05  # a rendering, not the white background
 
 
 def test_plane_values_reproduce_linear_data(tmp_path):

@@ -40,6 +40,9 @@ __all__ = [
 
 AXES = "xyz"
 CMAP = "viridis"
+#: zlib level of the PNG files: 3 writes them in about half the time of PIL's default 6, for
+#: files about 15 % larger
+PNG = {"compress_level": 3}
 
 
 def _pyvista():
@@ -293,7 +296,7 @@ def slice_figure(data, meshes: dict, out_png, errors=None, function=None, dpi: i
                  fontsize=11.5, y=0.985)
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
+    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
     plt.close(fig)
     return out_png
 
@@ -322,8 +325,9 @@ def slice_figure_3d(data, meshes: dict, out_png, errors=None, function=None, dpi
                     cmap: str = CMAP):
     """pyvista off-screen version: slice planes through the volume plus the mesh vertices.
 
-    Each panel is rendered separately and the four images are composed with
-    matplotlib, which adds the titles and one shared colour bar.
+    Each panel is rendered separately, at the pixel size of its cell of the 2 x 2
+    layout, and the four images are placed pixel for pixel in a matplotlib figure,
+    which adds the titles and one shared colour bar.
     """
     pv = _pyvista()
     plt = _pyplot()
@@ -334,21 +338,24 @@ def slice_figure_3d(data, meshes: dict, out_png, errors=None, function=None, dpi
     if vmax - vmin < 1e-12:
         vmin, vmax = vmin - 0.5, vmax + 0.5
     coords = tuple(_plane_coordinate(data, a) for a in range(3))
-    images = []
-    for fraction, mesh, n_pts, erms, erms_int in panels:
-        images.append(_render_panel_3d(pv, mesh, (vmin, vmax), cmap, show_points=fraction is not None,
-                                       coords=coords))
     nrow = 2 if len(panels) > 2 else 1
     ncol = 2 if len(panels) > 1 else 1
     fig = plt.figure(figsize=(6.2 * ncol + 1.0, 5.2 * nrow + 0.8), dpi=dpi)
     gs = fig.add_gridspec(nrow, ncol, left=0.01, right=0.89, top=0.90 if nrow == 2 else 0.84,
                           bottom=0.02, hspace=0.12, wspace=0.02)
-    for p, ((fraction, mesh, n_pts, erms, erms_int), img) in enumerate(zip(panels, images)):
+    # each panel is rendered at the pixel size of its cell and placed pixel for pixel
+    # (figimage): no resampling of the renderings when the figure is saved
+    width, height = fig.canvas.get_width_height()
+    for p, (fraction, mesh, n_pts, erms, erms_int) in enumerate(panels):
         r, c = divmod(p, ncol)
-        ax = fig.add_subplot(gs[r, c])
-        ax.imshow(img)
-        ax.set_axis_off()
-        ax.set_title(_panel_title(fraction, n_pts, erms, erms_int), fontsize=11, fontweight="bold")
+        box = gs[r, c].get_position(fig)
+        x0, y0 = int(round(box.x0 * width)), int(round(box.y0 * height))
+        w, h = int(round(box.x1 * width)) - x0, int(round(box.y1 * height)) - y0
+        img = _render_panel_3d(pv, mesh, (vmin, vmax), cmap, show_points=fraction is not None, window=(w, h),
+                               coords=coords)
+        fig.figimage(img, xo=x0, yo=y0, origin="upper")
+        fig.text(0.5 * (box.x0 + box.x1), box.y1 + 0.004, _panel_title(fraction, n_pts, erms, erms_int),
+                 ha="center", va="bottom", fontsize=11, fontweight="bold")
     norm = mcolors.Normalize(vmin=vmin, vmax=vmax)
     cax = fig.add_axes([0.91, 0.15, 0.02, 0.62])
     cb = fig.colorbar(plt.cm.ScalarMappable(norm=norm, cmap=cmap), cax=cax)
@@ -359,7 +366,7 @@ def slice_figure_3d(data, meshes: dict, out_png, errors=None, function=None, dpi
                  fontsize=12, y=0.985)
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
+    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
     plt.close(fig)
     return out_png
 
@@ -447,7 +454,7 @@ def erms_figure(errors, out_png, published=None, functions=None, dpi: int = 110)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi)
+    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
     plt.close(fig)
     _ = pd  # imported for callers passing DataFrames
     return out_png
