@@ -63,6 +63,7 @@ rule collect_errors:
         "results/logs/collect_errors.log",
     benchmark:
         "results/benchmarks/collect_errors.tsv"
+    priority: 2  # erms_figure waits for it (see slice_figure_3d in figures.smk)
     threads: 1
     resources:
         mem_mb=500,

@@ -34,6 +34,8 @@ rule slice_figure:
         "results/logs/slice_figure/n{n}/{variant}.log",
     benchmark:
         "results/benchmarks/slice_figure/n{n}/{variant}.tsv"
+    # the jobs after the reductions, longest first (see slice_figure_3d)
+    priority: 1
     threads: 1
     resources:
         mem_mb=figure_mem_mb,
@@ -75,6 +77,10 @@ rule slice_figure_3d:
         "results/logs/slice_figure_3d/n{n}/{variant}.log",
     benchmark:
         "results/benchmarks/slice_figure_3d/n{n}/{variant}.tsv"
+    # the jobs after the reductions, longest first: this one and the chain collect_errors ->
+    # erms_figure, then the 2-D figures, then the tables; on 2 cores the run then ends with
+    # the two cores about equally busy instead of with this job alone
+    priority: 2
     threads: 1
     resources:
         mem_mb=figure_mem_mb,
@@ -101,6 +107,7 @@ rule erms_figure:
         "results/logs/erms_figure.log",
     benchmark:
         "results/benchmarks/erms_figure.tsv"
+    priority: 2  # see slice_figure_3d
     threads: 1
     resources:
         mem_mb=1000,
