@@ -171,18 +171,20 @@ print(json.dumps({"numba": "numba" in sys.modules, "results": out}))
 """
 
 
+def _python(args, env):
+    """The standard output of ``python *args`` in a new process (which must succeed)."""
+    p = subprocess.run([sys.executable, *args], capture_output=True, text=True, timeout=900, env=env)
+    assert p.returncode == 0, p.stderr
+    return p.stdout
+
+
 def _same_without_numba(code, env, built_dir, built):
     """``code`` run with the extension modules (never importing numba, building nothing) and
     with numba's own kernels: the same results."""
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
-    assert p.returncode == 0, p.stderr
-    ours = json.loads(p.stdout)
+    ours = json.loads(_python(["-c", code], env))
     assert ours["numba"] is False
     assert sorted(built_dir.iterdir()) == built
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900,
-                       env=dict(env, TRIVSEL_AOT="0"))
-    assert p.returncode == 0, p.stderr
-    numbas = json.loads(p.stdout)
+    numbas = json.loads(_python(["-c", code], dict(env, TRIVSEL_AOT="0")))
     assert numbas["numba"] is True
     assert numbas["results"] == ours["results"]
 
@@ -195,9 +197,7 @@ def test_compile_builds_what_a_decimation_runs_and_a_run_needs_no_numba(tmp_path
     compile."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("TRIVSEL_AOT", None)
-    p = subprocess.run([sys.executable, "-m", "trivsel", "compile", "--method", "decimate"], capture_output=True,
-                       text=True, timeout=900, env=env)
-    assert p.returncode == 0, p.stderr
+    _python(["-m", "trivsel", "compile", "--method", "decimate"], env)
     built = sorted((tmp_path / "cache" / "trivsel-aot").iterdir())
     assert len(built) == 1 and built[0].name.endswith(tuple(EXTENSION_SUFFIXES))
     _same_without_numba(_DECIMATE_WITHOUT_NUMBA, env, tmp_path / "cache" / "trivsel-aot", built)
@@ -341,15 +341,13 @@ print(json.dumps({"results": results, "compiled": {k: v for k, v in misses().ite
 """
 
 
-def _compile(args, env):
-    return subprocess.Popen([sys.executable, "-m", "trivsel", "compile", *args], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
-
-
-def _ok(proc):
-    out, err = proc.communicate(timeout=900)
-    assert proc.returncode == 0, err
-    return out
+def _compile_side_by_side(part_args, env):
+    """``trivsel compile`` with each of ``part_args`` in processes running at once (which must succeed)."""
+    procs = [subprocess.Popen([sys.executable, "-m", "trivsel", "compile", *args], stdout=subprocess.PIPE,
+                              stderr=subprocess.PIPE, text=True, env=env) for args in part_args]
+    for proc in procs:
+        _, err = proc.communicate(timeout=900)
+        assert proc.returncode == 0, err
 
 
 @pytest.mark.slow
@@ -369,37 +367,29 @@ def test_the_workflows_compile_jobs_cover_every_reduction_with_and_without_numba
       kernels a reduction calls from Python (the helpers are inside their machine code,
       so they are not pinned one by one) and gets the same results.
 
-    About 70 s: a cold compile, two builds and numba's drivers."""
+    About 60 s: a cold compile, two builds and numba's drivers."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "cache"))
     env.pop("TRIVSEL_AOT", None)
-    for proc in [_compile(["--part", "0"], env), _compile(["--part", "1"], env)]:
-        _ok(proc)
+    _compile_side_by_side([["--part", "0"], ["--part", "1"]], env)
     for args in (["--part", "2"], ["--method", "greedy", "--part", "2"]):
-        _ok(_compile(args, env))
+        _python(["-m", "trivsel", "compile", *args], env)
     built = sorted((tmp_path / "cache" / "trivsel-aot").iterdir())
     # _aot_entry_kernels_{variant}_{hash}.so: one per method
     assert sorted(b.name.split(".")[0].split("_")[-2] for b in built) == ["greedy", "paper"]
     assert all(b.name.endswith(tuple(EXTENSION_SUFFIXES)) for b in built)
     # built: nothing to do, found without importing numba (the workflow's kernels jobs in a warm run)
     code = "import sys\nfrom trivsel.cli import main\nmain(['compile', '--part', '0'])\nprint('numba' in sys.modules)"
-    p = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=900, env=env)
-    assert p.returncode == 0, p.stderr
-    assert "compiled or loaded 0 kernel signatures" in p.stdout and p.stdout.split()[-1] == "False"
+    out = _python(["-c", code], env)
+    assert "compiled or loaded 0 kernel signatures" in out and out.split()[-1] == "False"
 
     jit = dict(env, TRIVSEL_AOT="0")
-    p = subprocess.run([sys.executable, "-c", _DRIVERS_THEN_REDUCE], capture_output=True, text=True, timeout=900,
-                       env=jit)
-    assert p.returncode == 0, p.stderr
-    out = json.loads(p.stdout)
+    out = json.loads(_python(["-c", _DRIVERS_THEN_REDUCE], jit))
     # the drivers were compiled, so the cache is the test's own; the rest came from parts 0 and 1
     assert {"run_insertions", "run_greedy"} <= set(out["compiled"])
     assert out["loaded"] > 20
     assert out["then"] == {}
     assert out["multi"] == []
-    p = subprocess.run([sys.executable, "-c", _REDUCE_FROM_CACHE], capture_output=True, text=True, timeout=900,
-                       env=jit)
-    assert p.returncode == 0, p.stderr
-    warm = json.loads(p.stdout)
+    warm = json.loads(_python(["-c", _REDUCE_FROM_CACHE], jit))
     assert warm["compiled"] == {}
     assert warm["results"] == out["results"]
     entries = {"_alloc", "fill_buckets", "cone_from_hull", "insert_point", "swap", "run_insertions", "run_greedy",

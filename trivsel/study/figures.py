@@ -301,7 +301,7 @@ def slice_figure(data, meshes: dict, out_png, errors=None, function=None, dpi: i
     return out_png
 
 
-def _render_panel_3d(pv, mesh, clim, cmap, show_points, window=(760, 620), coords=(0.0, 0.0, 0.0)):
+def _render_panel_3d(pv, mesh, clim, cmap, show_points, window, coords=(0.0, 0.0, 0.0)):
     plotter = pv.Plotter(off_screen=True, window_size=list(window))
     plotter.set_background("white")
     slices = mesh.slice_orthogonal(x=coords[0], y=coords[1], z=coords[2])
