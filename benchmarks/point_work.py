@@ -46,10 +46,10 @@ WORKLOAD = r'''
 import sys
 import numpy as np
 import trivsel
+from trivsel.mesh.state import N_COUNTERS
 from trivsel.methods import get_method
 
 print(f"(the counting copy: {trivsel.__file__})")
-from trivsel.mesh.state import N_COUNTERS
 
 method, function, n = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 fractions = [float(f) for f in sys.argv[4:]]

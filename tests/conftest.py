@@ -67,3 +67,15 @@ def sacct_rows(ids, fields, tries=60):
             break
         time.sleep(1)
     return rows
+
+
+def load_benchmark_script(name):
+    """A script of benchmarks/ as a module (they are not a package)."""
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

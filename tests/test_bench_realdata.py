@@ -4,25 +4,17 @@ that both its scores and its least-squares refits rest on."""
 
 import importlib.util
 import math
-from pathlib import Path
 
 import numpy as np
 import pytest
 
 import trivsel
+from conftest import load_benchmark_script
 from trivsel.study import realdata as rd
 from trivsel.study.baselines import evaluate_mesh_at_points, vtk_quadric_decimation
 
 
-def _load_script(name):
-    """A script of benchmarks/ as a module."""
-    spec = importlib.util.spec_from_file_location(name, Path(__file__).resolve().parents[1] / "benchmarks" / f"{name}.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
-
-
-bench = _load_script("bench_realdata")
+bench = load_benchmark_script("bench_realdata")
 
 HAVE_REAL = importlib.util.find_spec("nilearn") is not None and importlib.util.find_spec("dipy") is not None
 
@@ -132,7 +124,7 @@ def test_real_volumes_load_and_measure():
 
 
 def test_decimate_hashes_tell_identical_runs_from_different_ones(tmp_path, monkeypatch, capsys):
-    hashes = _load_script("decimate_hashes")
+    hashes = load_benchmark_script("decimate_hashes")
     one = hashes.run_hash("chirp", True, "sse", "box", None)
     assert hashes.run_hash("chirp", True, "sse", "box", None) == one
     assert hashes.run_hash("chirp", True, "max", "box", None) != one

@@ -1,19 +1,16 @@
 """benchmarks/point_work.py adds its counters to a copy of the package by exact text
 replacement: the texts it looks for must still be in the kernel's sources, once each."""
 
-import importlib.util
 from pathlib import Path
 
 import pytest
+from conftest import load_benchmark_script
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _script():
-    spec = importlib.util.spec_from_file_location("point_work", ROOT / "benchmarks" / "point_work.py")
-    mod = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(mod)
-    return mod
+    return load_benchmark_script("point_work")
 
 
 def test_the_counters_go_into_a_copy_and_leave_the_package_alone(tmp_path):
