@@ -531,7 +531,7 @@ _LINE = {"data": "-", "fit": "--", "free": "-"}
 def methods_figure(df, out_png, function=None, n=None, dpi=110):
     """Log-log plot of E_RMS (left) and E_inf (right) against the vertex count, one line per
     (method, values); VTK's and the random subsets' min-max spread as a band."""
-    from .figures import PNG, _function_title, _pyplot
+    from .figures import _function_title, _pyplot, _save_png
 
     plt = _pyplot()
     from matplotlib.ticker import FixedLocator, FuncFormatter, NullLocator
@@ -584,6 +584,4 @@ def methods_figure(df, out_png, function=None, n=None, dpi=110):
         title = f"{fn}, n = {df['n'].iloc[0]}"
     fig.suptitle(title + " - every method at matched vertex counts", fontsize=11)
     fig.tight_layout(rect=(0, 0.09, 1, 1))
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
-    return out_png
+    return _save_png(fig, out_png, dpi)

@@ -65,6 +65,14 @@ def _pyplot():
     return plt
 
 
+def _save_png(fig, out_png, dpi):
+    """Write ``fig`` to ``out_png`` at :data:`PNG`'s compression, close it, return ``out_png``:
+    every figure of the study is written here."""
+    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
+    _pyplot().close(fig)
+    return out_png
+
+
 def percent_label(fraction: float) -> str:
     """'50 %' for 0.5."""
     return f"{100 * float(fraction):g} %"
@@ -296,9 +304,7 @@ def slice_figure(data, meshes: dict, out_png, errors=None, function=None, dpi: i
                  fontsize=11.5, y=0.985)
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
-    return out_png
+    return _save_png(fig, out_png, dpi)
 
 
 def _render_panel_3d(pv, mesh, clim, cmap, show_points, window, coords=(0.0, 0.0, 0.0)):
@@ -366,9 +372,7 @@ def slice_figure_3d(data, meshes: dict, out_png, errors=None, function=None, dpi
                  fontsize=12, y=0.985)
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
-    return out_png
+    return _save_png(fig, out_png, dpi)
 
 
 def _variant_cols():
@@ -454,7 +458,5 @@ def erms_figure(errors, out_png, published=None, functions=None, dpi: int = 110)
     fig.tight_layout(rect=(0, 0, 1, 0.96))
     out_png = Path(out_png)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
     _ = pd  # imported for callers passing DataFrames
-    return out_png
+    return _save_png(fig, out_png, dpi)

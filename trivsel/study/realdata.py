@@ -962,7 +962,7 @@ def curves_figure(df, out_png, volume=None, dpi=110):
     -------
     out_png
     """
-    from .figures import PNG, _pyplot
+    from .figures import _pyplot, _save_png
 
     plt = _pyplot()
     df = _frame(df)
@@ -999,6 +999,4 @@ def curves_figure(df, out_png, volume=None, dpi=110):
     ax.legend(fontsize=9)
     ax.set_title(f"{volume}: E_RMS with fitted vertex values against the vertex count", fontsize=10)
     fig.tight_layout()
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
-    return out_png
+    return _save_png(fig, out_png, dpi)

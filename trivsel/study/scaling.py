@@ -397,7 +397,7 @@ def scaling_figure(table, out_png, dpi=110, title=None):
         ``out_png``.  Each method is drawn with markers; the dashed line of its
         colour is the fitted power law, its exponent in the legend.
     """
-    from .figures import PNG, _pyplot
+    from .figures import _pyplot, _save_png
 
     plt = _pyplot()
     if table.empty:
@@ -425,9 +425,7 @@ def scaling_figure(table, out_png, dpi=110, title=None):
     fig.suptitle(title or "Cost against the number of points (fresh process per run, after a warm-up)",
                  fontsize=11)
     fig.tight_layout()
-    fig.savefig(out_png, dpi=dpi, pil_kwargs=PNG)
-    plt.close(fig)
-    return out_png
+    return _save_png(fig, out_png, dpi)
 
 
 def _fmt(x, nd=3):
