@@ -64,7 +64,7 @@ print(f"{method} on {source} to {fraction:g}: {time.perf_counter() - t0:.2f} s (
 
 
 def short(name):
-    """``trivsel.decimation_kernels._best`` from numba's mangled name (``_ZN7trivsel18decimation_kernels5_best...``)."""
+    """``trivsel.decimation.collapse._best`` from numba's mangled name (``_ZN7trivsel10decimation8collapse5_best...``)."""
     parts, i = [], 3 if name.startswith("_ZN") else 0
     while i < len(name) and name[i].isdigit():
         j = i

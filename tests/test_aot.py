@@ -80,7 +80,7 @@ def test_a_failed_build_falls_back_to_numba_once_and_is_tried_again_by_compile(m
         dec = dm.Decimation(data.ijk, data.shape, data.values)
     assert len(calls) == 1
     assert hasattr(dec._k.run, "signatures")  # numba's kernels
-    assert "could not compile trivsel.decimation_kernels ahead of time (command 'gcc' failed" in caplog.text
+    assert "could not compile trivsel.decimation.collapse ahead of time (command 'gcc' failed" in caplog.text
     failed = list(tmp_path.glob("trivsel-aot/*.failed"))
     assert len(failed) == 1 and "gcc" in failed[0].read_text()
     caplog.clear()

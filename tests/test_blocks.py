@@ -395,3 +395,57 @@ def test_blocked_nifti_keeps_its_geometry(tmp_path):
     e_rms, e_inf = evaluate(whole, tets)
     assert e_inf <= 20.0 and e_inf == pytest.approx(summary["E_inf"])
     assert e_rms == pytest.approx(summary["E_rms"], rel=1e-9)
+
+
+def _memory_refusal(tmp_path, capsys, monkeypatch, *args):
+    """``trivsel reduce ARGS`` with 1 MB of memory available: its one-line refusal."""
+    import trivsel.resources as res
+    from trivsel.cli import main
+
+    monkeypatch.setattr(res, "available_bytes", lambda: 1_000_000)
+    assert main(["reduce", *args, "--out", str(tmp_path / "o")]) == 2
+    monkeypatch.undo()
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and not (tmp_path / "o").exists(), err
+    return err
+
+
+@pytest.mark.parametrize("args, expect", [
+    (["--method", "decimate", "--tol-inf", "0.05"],
+     "--block 16 --tol-inf 0.05 --method greedy --out {out} -c 2 (they run paper or greedy)"),
+    (["--method", "paper", "--fractions", "0.1"],
+     "--block 16 --tol-inf TOL --method paper --out {out} -c 2 (blocks stop at an E_inf tolerance TOL)"),
+])
+def test_memory_refusal_names_the_blocks_command_line(tmp_path, capsys, monkeypatch, args, expect):
+    err = _memory_refusal(tmp_path, capsys, monkeypatch, "--function", "4", "--n", "12", *args)
+    assert "reducing 2197 points needs about" in err or "decimating 2197 points needs about" in err, err
+    assert ("in blocks of bounded memory: trivsel blocks --function 4 --n 12 "
+            + expect.format(out=tmp_path / "o")) in err, err
+
+
+def test_memory_refusal_of_scattered_points_names_no_blocks_command(tmp_path, capsys, monkeypatch):
+    rng = np.random.default_rng(0)
+    p = rng.random((3000, 3))
+    np.savez(tmp_path / "pts.npz", points=p, values=p[:, 0])
+    err = _memory_refusal(tmp_path, capsys, monkeypatch, str(tmp_path / "pts.npz"), "--fractions", "0.1")
+    assert "needs about" in err and "trivsel blocks" not in err, err
+
+
+@pytest.mark.slow
+def test_the_blocks_command_of_a_memory_refusal_does_the_job(tmp_path, capsys, monkeypatch):
+    """The command line that a refusal names runs as it stands and meets the tolerance."""
+    import shlex
+
+    import nibabel as nib
+
+    from trivsel.cli import main
+
+    v = sample_grid(4, 12).values.reshape(13, 13, 13)
+    nib.save(nib.Nifti1Image(v.astype(np.float32), np.eye(4)), tmp_path / "scan.nii.gz")
+    err = _memory_refusal(tmp_path, capsys, monkeypatch, str(tmp_path / "scan.nii.gz"), "--method", "decimate",
+                          "--tol-inf", "0.02")
+    cmd = shlex.split(err.split("in blocks of bounded memory: ", 1)[1].split(" (", 1)[0])
+    assert cmd[:3] == ["trivsel", "blocks", str(tmp_path / "scan.nii.gz")], cmd
+    assert main(cmd[1:]) == 0
+    summary = json.loads((tmp_path / "o" / "summary.json").read_text())
+    assert summary["E_inf"] <= 0.02 + 1e-12, summary

@@ -16,7 +16,7 @@ from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import grid_from_array
 from trivsel.decimation import INF, Decimation, grid_tetrahedra, reduce_by_collapse
-from trivsel.decimation_kernels import _best
+from trivsel.decimation.collapse import _best
 
 
 def brute_force_residuals(ijk, values, tets):

@@ -112,10 +112,9 @@ def test_method_defaults_live_in_the_method_module_and_resolve():
 def test_every_method_module_has_the_protocol():
     for name, module in METHODS.items():
         assert get_method(name) is module and module.NAME == name
-        # an inserting method ranks, starts and advances; a decimating one gets the whole run
-        inserting = ("rank", "start", "advance") if not getattr(module, "DECIMATES", False) else ()
-        for attr in ("DEFAULTS", "GREEDY_QUEUE", "KERNEL", "needs_curvature", "check") + inserting:
+        for attr in ("DEFAULTS", "PRESCRIBED_BOUNDARY", "check", "memory", "run", "compile_kernels"):
             assert hasattr(module, attr), f"method {name} lacks {attr}"
+        assert callable(module.run) and callable(module.memory) and callable(module.compile_kernels)
 
 
 def test_reduce_takes_an_options_object_and_keyword_overrides():

@@ -256,7 +256,7 @@ def test_compile_kernels_rejects_bad_arguments(capsys):
 
     with pytest.raises(ValueError, match="unknown part 3"):
         compile_kernels("paper", 3)
-    with pytest.raises(ValueError, match="unknown method 'vtk'"):
+    with pytest.raises(ValueError, match="unknown insertion method 'vtk'"):
         compile_kernels("vtk")
     with pytest.raises(SystemExit) as exc:
         main(["compile", "--part", "3"])
@@ -269,7 +269,7 @@ def test_compile_kernels_rejects_bad_arguments(capsys):
 def test_result_does_not_depend_on_where_the_compiled_loop_is_chunked(monkeypatch, method, stop):
     """The insertion loop returns to Python in chunks (so that Ctrl-C is seen); a chunk
     ending exactly where a tolerance is met must not insert one point more."""
-    import trivsel.reduction as R
+    import trivsel.methods.insertion as R
 
     def run(step):
         monkeypatch.setattr(R, "CHUNK_STEP", step)

@@ -8,13 +8,14 @@ piecewise trilinear approximation*.  Modules follow the paper:
 * :mod:`trivsel.triangulation` - initial triangulation and boundary (sections 1, 3);
 * :mod:`trivsel.curvature` - absolute curvature (section 2, eqs. 4-10);
 * :mod:`trivsel.selection` - ranking and stopping (section 3);
-* :mod:`trivsel.mesh` - the data-dependent tetrahedral mesh (section 4);
-* :mod:`trivsel.methods` - the point-selection methods (``paper``, ``greedy``, ``decimate``);
-* :mod:`trivsel.decimation` - bottom-up selection by half-edge collapses (``decimate``);
+* :mod:`trivsel.methods` - the point-selection methods (``paper``, ``greedy``, ``decimate``), one
+  protocol that :func:`reduce` and the block stages call;
+* :mod:`trivsel.mesh` - the insertion methods' kernels: the data-dependent tetrahedral mesh (section 4);
+* :mod:`trivsel.decimation` - ``decimate``'s kernels: half-edge collapses from the full grid;
 * :mod:`trivsel.norms` - E_RMS and E_inf (section 5, eqs. 19-20);
 * :mod:`trivsel.fitting` - least-squares vertex values on a mesh;
 * :mod:`trivsel.options` - every option, defined once (:class:`Options`);
-* :mod:`trivsel.reduction` - :func:`reduce`, the whole method;
+* :mod:`trivsel.reduction` - :func:`reduce`, the whole method; :mod:`trivsel.result` what it returns;
 * :mod:`trivsel.io` - reading user files, writing results;
 * :mod:`trivsel.regions` - volumes read by region (Zarr, ``.npy``, raw NRRD, NIfTI, functions);
 * :mod:`trivsel.faces` - the 1-D and 2-D reductions of a block's lines and faces;
@@ -35,13 +36,13 @@ __version__ = "0.1.0"
 # Everything else on first use (PEP 562): ``import trivsel`` loads no numpy, so the
 # command line handles Ctrl-C from its first moments.
 _LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"),
-         "ReductionResult": ("reduction", "ReductionResult"), "load": ("io", "load"),
+         "ReductionResult": ("result", "ReductionResult"), "load": ("io", "load"),
          "write_outputs": ("io", "write_outputs"), "PointData": ("data", "PointData"),
          "grid_from_array": ("data", "grid_from_array"), "sample_grid": ("data", "sample_grid"),
          "scattered": ("data", "scattered"), "FUNCTIONS": ("functions", "FUNCTIONS")}
 _SUBMODULES = {"blocks", "cli", "curvature", "data", "decimation", "exceptions", "faces", "fitting", "functions", "io", "mesh",
                "methods", "norms", "options", "pieces", "predicates", "reduction", "regions", "regression",
-               "resources", "selection", "study", "triangulation"}
+               "resources", "result", "selection", "study", "triangulation"}
 
 
 def __getattr__(name):

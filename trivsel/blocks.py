@@ -360,6 +360,22 @@ BLOCK_SECONDS_PER_POINT = 1e-4
 PLANE_SECONDS_PER_POINT = 2e-5
 
 
+#: Block sizes (grid intervals per axis) that :func:`block_for_memory` chooses from, largest first.
+SUGGESTED_BLOCKS = (128, 96, 64, 48, 32, 16)
+#: The most memory a block job of a suggested command line asks for.
+SUGGESTED_JOB_BYTES = 1.5 * 2**30
+
+
+def block_for_memory(available, *, cores=2):
+    """The largest block of :data:`SUGGESTED_BLOCKS` whose 3-D job (:func:`job_resources`)
+    needs at most :data:`SUGGESTED_JOB_BYTES` and at most ``available / cores`` bytes."""
+    bound = min(SUGGESTED_JOB_BYTES, float(available) / max(int(cores), 1))
+    for b in SUGGESTED_BLOCKS:
+        if JOB_BASE_BYTES + BLOCK_BYTES_PER_POINT * float(b + 1) ** 3 <= bound:
+            return b
+    return SUGGESTED_BLOCKS[-1]
+
+
 def job_resources(plan, kind, item=None, *, merged=True):
     """``(mem_mb, runtime_minutes)`` to request for a job of ``kind`` ("kernels", "lines",
     "plane", "block", "merge"); ``merged``: the merge writes the merged mesh, whose memory
@@ -417,15 +433,17 @@ def write_config(out, config):
     ``volume``), ``block`` (grid intervals per block), ``tol_inf``, ``method``.  The
     volume is opened (its header only) for its shape.  Returns the full configuration.
     """
-    from .methods import get_method
-    from .regions import open_volume
+    from .methods import METHODS, get_method
 
     cfg = {k: config.get(k) for k in SOURCE_KEYS}
     tol = config.get("tol_inf")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
         raise InputError(f"tol_inf must be a finite number >= 0, got {tol!r}")
     method = config.get("method", "greedy")
-    get_method(method)
+    if not get_method(method).PRESCRIBED_BOUNDARY:
+        able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
+        raise InputError(f"method {method!r} cannot reduce a block with prescribed faces; "
+                         f"trivsel blocks runs {' or '.join(able)}")
     vol = _open(cfg)
     plan = plan_blocks(vol.shape, config.get("block"))
     if cfg["input"] is not None:

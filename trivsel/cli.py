@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .exceptions import InputError, one_line
+from .exceptions import InputError, MemoryShortage, one_line
 
 __all__ = ["main", "build_parser"]
 
@@ -122,7 +122,8 @@ def build_parser():
                         "merged; see config/blocks.yaml); options given here override them")
     b.add_argument("--block", type=int, help="grid intervals per block along each axis (e.g. 64)")
     b.add_argument("--tol-inf", type=float, help="E_inf tolerance every stage meets (so the merged mesh does)")
-    b.add_argument("--method", choices=["paper", "greedy"], help="the 3-D stage's method (default greedy)")
+    b.add_argument("--method", choices=[n for n, m in METHODS.items() if m.PRESCRIBED_BOUNDARY],
+                   help="the 3-D stage's method (default greedy)")
     b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
     b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
     b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
@@ -181,11 +182,6 @@ def _cmd_reduce(a):
             raise InputError("--array applies to input files, not to --function")
         if a.volume is not None:
             raise InputError("--volume applies to input files, not to --function")
-        data = sample_grid(resolve_function(a.function), a.n)
-    else:
-        from .resources import interruptible
-
-        data = interruptible(load, a.input, a.array, volume=a.volume)  # large files: Ctrl-C stays prompt
     check = None
     if a.check:
         from .mesh import check_mesh
@@ -193,14 +189,60 @@ def _cmd_reduce(a):
         check = check_mesh
     boundary = None if a.boundary is None else _read_triangles(a.boundary)
     inputs = [p for p in (a.input, a.boundary) if p is not None]
-    result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
-                    boundary=boundary, options=options, threads=a.threads, check=check,
-                    progress=_progress_line if show else None)
+    try:
+        if a.function is not None:
+            data = sample_grid(resolve_function(a.function), a.n)
+        else:
+            from .resources import interruptible
+
+            data = interruptible(load, a.input, a.array, volume=a.volume)  # large files: Ctrl-C stays prompt
+        result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
+                        boundary=boundary, options=options, threads=a.threads, check=check,
+                        progress=_progress_line if show else None)
+    except MemoryShortage as exc:
+        hint = _blocks_hint(a, exc.available)
+        raise InputError(f"{exc}; {hint}" if hint else str(exc)) from None
     out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
     print(format_rows(result.error_rows()))
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
           f"in {result.timings['total']:.2f} s", file=sys.stderr)
     return 0
+
+
+def _blocks_hint(a, available):
+    """The ``trivsel blocks`` command line that does the job of the reduce command ``a`` in
+    bounded memory, as a phrase for a memory refusal, or None (scattered input, or a
+    prescribed boundary: blocks cut grids into boxes of their own)."""
+    import shlex
+
+    from .blocks import block_for_memory
+    from .methods import METHODS, get_method
+
+    if a.boundary is not None:
+        return None
+    if a.input is not None:
+        from .regions import open_volume
+
+        try:
+            open_volume(a.input, array=a.array, volume=a.volume)  # its header: is it a grid?
+        except InputError:
+            return None
+        source = [a.input] + (["--array", a.array] if a.array else []) + (
+            ["--volume", str(a.volume)] if a.volume is not None else [])
+    else:
+        source = ["--function", str(a.function), "--n", str(a.n)]
+    able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
+    method = a.method if get_method(a.method).PRESCRIBED_BOUNDARY else "greedy"
+    tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"
+    cmd = ["trivsel", "blocks", *source, "--block", str(block_for_memory(available)), "--tol-inf", tol,
+           "--method", method, "--out", a.out, "-c", "2"]
+    notes = []
+    if a.tol_inf is None:
+        notes.append("blocks stop at an E_inf tolerance TOL")
+    if method != a.method:
+        notes.append(f"they run {' or '.join(able)}")
+    return ("in blocks of bounded memory: " + shlex.join(cmd)
+            + (f" ({'; '.join(notes)})" if notes else ""))
 
 
 def _read_triangles(path):
@@ -217,10 +259,10 @@ def _read_triangles(path):
 def _cmd_compile(a):
     import time
 
-    from .mesh import compile_kernels
+    from .methods import get_method
 
     t0 = time.perf_counter()
-    n = compile_kernels(a.method, a.part)
+    n = get_method(a.method).compile_kernels(a.part)
     part = "all parts" if a.part is None else f"part {a.part}"
     print(f"compiled or loaded {n} kernel signatures ({a.method}, {part}) in {time.perf_counter() - t0:.1f} s")
     return 0

@@ -11,6 +11,18 @@ class InputError(ValueError):
     """
 
 
+class MemoryShortage(InputError):
+    """A run that needs more memory than is available now (an :class:`InputError`).
+
+    ``needed`` and ``available`` are in bytes; the CLI adds the ``trivsel blocks`` command
+    line that does the job in bounded memory, where there is one.
+    """
+
+    def __init__(self, message, *, needed, available):
+        super().__init__(message)
+        self.needed, self.available = float(needed), float(available)
+
+
 def check_threads(threads):
     """``threads`` as an int >= 1; one-line InputError otherwise."""
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:

@@ -64,7 +64,7 @@ def fit_vertex_values(verts, weights, values, vertices):
 def fit_on_mesh(mesh, values, interior):
     """A snapshot's ``fit``: least-squares values on ``mesh`` (anything with
     ``point_weights()`` and ``vertices()``: :class:`trivsel.mesh.TetMesh`,
-    :class:`trivsel.decimation.Decimation`), as the dict :class:`trivsel.reduction.Snapshot`
+    :class:`trivsel.decimation.Decimation`), as the dict :class:`trivsel.result.Snapshot`
     holds: ``vertices``, ``values``, ``residuals`` and their ``errors`` (eqs. 19-20)."""
     from .norms import error_norms
 

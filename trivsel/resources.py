@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import os
 
-from .exceptions import InputError
+from .exceptions import MemoryShortage
 
 __all__ = ["available_bytes", "check_memory", "interruptible", "GRID_BYTES_PER_POINT", "MESH_BYTES_PER_POINT",
            "DELAUNAY_BYTES_PER_POINT"]
@@ -40,11 +40,12 @@ def available_bytes() -> int | None:
 
 
 def check_memory(nbytes: float, what: str) -> None:
-    """One-line InputError when ``nbytes`` exceeds the memory available now."""
+    """One-line :class:`~trivsel.exceptions.MemoryShortage` (an InputError) when ``nbytes``
+    exceeds the memory available now."""
     avail = available_bytes()
     if avail is not None and nbytes > avail:
-        raise InputError(f"{what} needs about {nbytes / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB "
-                         "of memory available")
+        raise MemoryShortage(f"{what} needs about {nbytes / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB "
+                             "of memory available", needed=nbytes, available=avail)
 
 
 def interruptible(fn, *args, **kwargs):

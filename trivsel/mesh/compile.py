@@ -181,11 +181,11 @@ def compile_kernels(method="paper", part=None):
 
     Parameters
     ----------
-    method : {"paper", "greedy", "decimate"}
-        The method the kernels are for.  The insertion methods run the same
-        kernels up to the driver, and parts 2 and None compile the method's own
-        driver (the other one compiles on its first run); ``"decimate"``
-        compiles :mod:`trivsel.decimation`'s kernel whatever the part.
+    method : {"paper", "greedy"}
+        The insertion method the kernels are for.  Both run the same kernels up
+        to the driver, and parts 2 and None compile the method's own driver (the
+        other one compiles on its first run).  Every method's ``compile_kernels``
+        (:mod:`trivsel.methods`) is what ``trivsel compile`` calls.
     part : {None, 0, 1, 2}
         ``0``: swapping (section 4: 2-3, 3-2, 4-4 and 2-2 flips) and the
         evaluation of configurations, with the replacement of tets
@@ -204,14 +204,10 @@ def compile_kernels(method="paper", part=None):
         The number of (kernel, signature) pairs compiled or loaded (the extension
         module's exports when it was built; 0 when it was there already).
     """
-    if method not in ("paper", "greedy", "decimate"):
-        raise ValueError(f"unknown method {method!r}: choose 'paper', 'greedy' or 'decimate'")
+    if method not in ("paper", "greedy"):
+        raise ValueError(f"unknown insertion method {method!r}: choose 'paper' or 'greedy'")
     if part not in (None,) + PARTS:
         raise ValueError(f"unknown part {part!r}: choose 0, 1, 2 or None (all)")
-    if method == "decimate":  # its own small kernel: every part compiles all of it
-        from ..decimation import compile_kernels as compile_decimation
-
-        return compile_decimation()
     from .. import aot
     from . import entries
 

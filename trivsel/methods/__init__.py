@@ -1,31 +1,34 @@
-"""Point-selection methods: a registry of modules with one small protocol.
+"""Point-selection methods: a registry of modules with one protocol.
 
-A method is a module that defines
+:func:`trivsel.reduce` and the block stages (:mod:`trivsel.blocks`) call every method
+through the same few names.  A method is a module that defines
 
 ``NAME``
     its name (the ``method`` option);
 ``DEFAULTS``
     its values for the options whose default depends on the method (the
     :class:`~trivsel.options.Options` fields that default to ``None``);
-``GREEDY_QUEUE``
-    whether the mesh keeps the per-tetrahedron candidate queue of error-driven
-    insertion (:class:`~trivsel.mesh.TetMesh`'s ``greedy``);
-``KERNEL``
-    which driver :func:`trivsel.mesh.compile_kernels` compiles (into the extension module of
-    :mod:`trivsel.mesh.entries`) for it;
-``needs_curvature(options) -> bool``
-    whether :func:`rank` needs the curvature graph of all points (on scattered data
-    that is a Delaunay triangulation of every point);
-``rank(data, candidates, options, *, tets, threads) -> (K, order)``
-    the absolute curvature of every point (or ``None``) and the candidates in
-    insertion order (a method that chooses as it goes returns them unordered);
-``advance(mesh, order, done, stop, tol_rms) -> (done, inserted)``
-    insert candidates into the mesh, with swapping, until ``stop`` of them are in
-    (or the RMS tolerance is met, or nothing is left to improve), and return the
-    new count and the points inserted, in order.
+``PRESCRIBED_BOUNDARY``
+    whether it can start from prescribed boundary triangles (``reduce(boundary=...)``,
+    which the 3-D stage of ``trivsel blocks`` uses);
+``check(data, options)``
+    a one-line :class:`~trivsel.exceptions.InputError` for option combinations it
+    cannot run on ``data``;
+``memory(data, options) -> [(bytes, what), ...]``
+    its peak memory, checked against what is available before any work;
+``run(problem) -> MethodRun``
+    the whole run on a checked :class:`~trivsel.methods.protocol.Problem`, returning
+    a :class:`~trivsel.methods.protocol.MethodRun` (snapshots, selection, counters);
+``compile_kernels(part=None) -> int``
+    compile (or load) its kernels once per machine (``trivsel compile``).
 
-A method that defines ``DECIMATES = True`` (``decimate``) removes points from the full
-grid instead of inserting them; :func:`trivsel.reduce` hands it the whole run.
+The insertion methods (``paper``, ``greedy``) share the top-down run of
+:mod:`trivsel.methods.insertion` and the kernels of :mod:`trivsel.mesh`, and define
+for it ``GREEDY_QUEUE`` (whether the mesh keeps the per-tetrahedron candidate queue of
+error-driven insertion), ``KERNEL`` (the driver compiled into
+:mod:`trivsel.mesh.entries`), ``needs_curvature``, ``rank``, ``start`` and ``advance``.
+``decimate`` removes points from the full grid with the kernels of
+:mod:`trivsel.decimation`.
 
 Adding a method is one module here and one line in :data:`METHODS`.
 """

@@ -12,15 +12,25 @@ options of curvature, ranking and swapping do not apply.
 
 from __future__ import annotations
 
+import logging
+import time
+
+import numpy as np
+
 from ..exceptions import InputError
+from .protocol import MethodRun, requested_fractions
 
 NAME = "decimate"
 #: No insertion and no swapping: the swap options keep their greedy values, unused.
 DEFAULTS = {"criterion": "sse", "boundary_flips": False, "max_flips": 0}
 GREEDY_QUEUE = False
 KERNEL = "decimate"
-#: reduce() hands the whole run to :func:`trivsel.decimation.reduce_by_collapse`.
-DECIMATES = True
+#: The collapses start from the full grid's Kuhn split; a prescribed boundary is not supported.
+PRESCRIBED_BOUNDARY = False
+#: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
+#: corner lists, the buckets and the queue), and more with fitted values.
+BYTES_PER_POINT = 1000
+FIT_BYTES_PER_POINT = 1400
 
 
 def needs_curvature(options):
@@ -37,3 +47,51 @@ def check(data, options):
     if not data.is_grid:
         raise InputError("method 'decimate' needs grid data (a .vti, NIfTI, NRRD or array volume); "
                          "scattered points: use 'greedy' or 'paper'")
+
+
+def memory(data, options):
+    """Peak memory, as ``[(bytes, what), ...]``."""
+    N = data.n_points
+    per_point = BYTES_PER_POINT + (FIT_BYTES_PER_POINT if "fit" in options.values else 0)
+    return [(per_point * float(N), f"decimating {N} points")]
+
+
+def compile_kernels(part=None):
+    """Compile (or load) the decimation's kernels; every part compiles all of them (they are small)."""
+    from ..decimation import compile_kernels as compile_decimation
+
+    return compile_decimation()
+
+
+def run(problem):
+    """The run goes down from the full grid (:func:`trivsel.decimation.reduce_by_collapse`)."""
+    from ..decimation import EXACT_WITHIN, reduce_by_collapse
+    from ..triangulation import cube_corners
+
+    data, opts, stop = problem.data, problem.options, problem.stop
+    if problem.boundary is not None:
+        raise InputError("method 'decimate' cannot take a prescribed boundary; use 'greedy' or 'paper'")
+    N = data.n_points
+    interior = data.interior_mask()
+    n_fixed = int(np.sum(~interior)) if opts.candidates == "interior" else 8
+    targets = problem.targets()
+    for m in targets:
+        if m < n_fixed:
+            raise InputError(f"target of {m} points is fewer than the {n_fixed} points that decimation keeps "
+                             f"(candidates {opts.candidates!r}, N = {N}): give --count {n_fixed} or more")
+    if not targets:  # tolerance only: as far down as the tolerance allows
+        targets = [n_fixed]
+    logging.getLogger("trivsel").info("decimating %d points down to %d", N, targets[0])
+    snaps, selected, stats, t_errors = reduce_by_collapse(
+        data, targets, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], candidates=opts.candidates,
+        key="max" if opts.criterion == "max" else "sse",
+        exact_within=EXACT_WITHIN if opts.lazy_queue else float("inf"),
+        values=opts.values, interior=interior, check=problem.check, progress=problem.progress,
+        t_start=problem.t_start)
+    requested_fractions(snaps, stop["fractions"], N)
+    t_total = time.perf_counter() - problem.t_start
+    timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
+    fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
+    order = selected[~fixed[selected]]
+    return MethodRun(snapshots=snaps, selected=snaps[-1].selected, curvature=None, order=order,
+                     timings=timings, stats=stats)

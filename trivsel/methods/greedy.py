@@ -11,12 +11,19 @@ from __future__ import annotations
 
 import numpy as np
 
+from .insertion import insertion_protocol
+
 NAME = "greedy"
 #: Squared residuals as the swap criterion, boundary 2-2 flips, at most 6 flips per
 #: insertion (the trade-off of time against error is in docs/methods.md).
 DEFAULTS = {"criterion": "sse", "boundary_flips": True, "max_flips": 6}
 GREEDY_QUEUE = True
 KERNEL = "greedy"
+#: A prescribed boundary (section 3's start from given triangles) is supported.
+PRESCRIBED_BOUNDARY = True
+
+#: ``run``, ``memory`` and ``compile_kernels``: the top-down run of :mod:`trivsel.methods.insertion`.
+run, memory, compile_kernels = insertion_protocol(__name__)
 
 
 def needs_curvature(options):

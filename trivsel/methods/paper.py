@@ -13,12 +13,18 @@ from __future__ import annotations
 import numpy as np
 
 from ..exceptions import InputError
+from .insertion import insertion_protocol
 
 NAME = "paper"
 #: Section 4's criterion (eq. 14), swapping until nothing improves, interior flips only.
 DEFAULTS = {"criterion": "rms", "boundary_flips": False, "max_flips": 0}
 GREEDY_QUEUE = False
 KERNEL = "paper"
+#: A prescribed boundary (section 3's start from given triangles) is supported.
+PRESCRIBED_BOUNDARY = True
+
+#: ``run``, ``memory`` and ``compile_kernels``: the top-down run of :mod:`trivsel.methods.insertion`.
+run, memory, compile_kernels = insertion_protocol(__name__)
 
 
 def needs_curvature(options):

@@ -102,7 +102,7 @@ class State(NamedTuple):
         corner c = 4 t + s is slot s of tet t; the corners of vertex v are the segment
         cpool[vstart[v]:vstart[v] + deg[v]] (capacity vcap[v]), newest last: reading a
         star is one contiguous read, not a chain of cache misses (see ``_link`` in
-        :mod:`trivsel.decimation_kernels`)
+        :mod:`trivsel.decimation.collapse`)
         phead[t]      first point in the bucket of tet t; pnext[p] the next; ptet[p] the tet
         (indices into the mesh are int32 while the corners fit, see ``INT32_CORNERS``)
         res[p]        f - L at p (0 at vertices); isv[p] whether p is a vertex
@@ -156,17 +156,18 @@ class State(NamedTuple):
 C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP = 0, 1, 2, 3, 4, 5
 
 #: The module of the compiled kernels, and the sources their machine code depends on
-KERNELS = "trivsel.decimation_kernels"
+KERNELS = "trivsel.decimation.collapse"
 _HERE = os.path.dirname(os.path.abspath(__file__))
-KERNEL_SOURCES = tuple(os.path.join(_HERE, f) for f in ("decimation_kernels.py", "decimation.py", "predicates.py",
-                                                        "aot.py"))
+_PARENT = os.path.dirname(_HERE)
+KERNEL_SOURCES = (os.path.join(_HERE, "collapse.py"), os.path.join(_HERE, "__init__.py"),
+                  *(os.path.join(_PARENT, f) for f in ("predicates.py", "aot.py")))
 
 
 def kernels(S, *, rebuild=False):
     """The kernels ``init``, ``run``, ``flush`` and ``weights`` for states of the layout of
     ``S``: compiled ahead of time and loaded without numba, or numba's own
     (:func:`trivsel.aot.kernels`; the same results)."""
-    from .aot import kernels as _kernels
+    from ..aot import kernels as _kernels
 
     return _kernels(KERNELS, KERNEL_SOURCES, S, rebuild=rebuild)
 
@@ -337,7 +338,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     ``exact_within`` times the target count of vertices remain and E_RMS and E_inf are
     below ``tol_rms`` and ``tol_inf`` over ``exact_within``; nearer the stop, and for
     every stopping decision, it holds exact costs (``inf``: exact throughout).  Returns ``(snapshots, selected, stats,
-    seconds)``: the snapshots ascending by count (:class:`trivsel.reduction.Snapshot`),
+    seconds)``: the snapshots ascending by count (:class:`trivsel.result.Snapshot`),
     the points in the order in which a selection grows (the final vertices in index
     order, then the removed points from last to first: ``selected[:k]`` is the
     selection of a snapshot with ``k`` points), the counters, and the seconds spent on
@@ -346,8 +347,8 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     import math
     import time
 
-    from .norms import error_norms
-    from .reduction import Snapshot
+    from ..norms import error_norms
+    from ..result import Snapshot
 
     t_start = time.perf_counter() if t_start is None else t_start
     N = data.n_points
@@ -380,7 +381,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
         r = dec.residuals()
         fit = None
         if "fit" in values:
-            from .fitting import fit_on_mesh
+            from ..fitting import fit_on_mesh
 
             fit = fit_on_mesh(dec, data.values, interior)
         m = dec.n_vertices

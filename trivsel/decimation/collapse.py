@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from .decimation import C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL
-from .predicates import orient3d_value
+from . import C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL
+from ..predicates import orient3d_value
 
 # ----------------------------------------------------------------------------- geometry
 
