@@ -16,6 +16,7 @@ from __future__ import annotations
 import inspect
 import math
 import logging
+import numbers
 import time
 from dataclasses import dataclass, field, replace
 
@@ -99,6 +100,16 @@ class ReductionResult:
         """The snapshot for ``fraction`` (nearest match)."""
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 
+    def to_pyvista(self, fraction=None):
+        """The mesh of the snapshot for ``fraction`` (nearest match; default the last, largest)
+        as a ``pyvista.UnstructuredGrid`` of tetrahedra: the same points, cells, point arrays
+        (``value``, ``original_index``, ``curvature``, ``fitted_value`` with
+        ``values=["data", "fit"]``) and field data as ``mesh_<fraction>.vtu`` of
+        ``trivsel reduce`` (:func:`trivsel.io.snapshot_to_vtk` builds both)."""
+        from .io import snapshot_to_pyvista
+
+        return snapshot_to_pyvista(self, self.snapshots[-1] if fraction is None else self.snapshot(fraction))
+
     def errors_frame(self):
         """One row per snapshot with the columns of ``errors.csv``, as a pandas DataFrame.
 
@@ -109,14 +120,24 @@ class ReductionResult:
         return pd.DataFrame(self.error_rows())
 
     def error_rows(self):
-        """The rows of :meth:`errors_frame` as a list of dicts (column order kept)."""
+        """The rows of :meth:`errors_frame` as a list of dicts (column order kept).
+
+        The data's columns: ``function`` and ``n`` (the Table-1 function and its grid
+        intervals per axis) for a function grid, empty otherwise; ``input`` (the data's
+        name: a file's name without its suffix, or the name given to
+        :func:`~trivsel.data.grid_from_array`), empty for a function grid; ``n_points``,
+        the number of points of the data."""
+        meta = self.data.meta
+        function = "function" in meta
         rows = []
         for mode in self.options.get("values", ["data"]):
             for s in self.snapshots:
                 err = s.errors if mode == "data" else s.fit["errors"]
                 rows.append({
-                    "function": self.data.name,
-                    "n": self.data.meta.get("n", (self.data.shape[0] - 1) if self.data.shape else ""),
+                    "function": meta["function"] if function else "",
+                    "n": meta["n"] if function else "",
+                    "input": "" if function else self.data.name,
+                    "n_points": self.data.n_points,
                     "method": self.options["method"],
                     "values": mode,
                     "fraction": s.fraction,
@@ -126,9 +147,13 @@ class ReductionResult:
         return rows
 
 
-_STOP_PARAMS = """    data : PointData, int or str
-        The data; a Table-1 function number or name is sampled on the ``(n+1)^3``
-        grid of eq. (18).
+_STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel image, path, int or str
+        The data: :class:`~trivsel.data.PointData`; a 3-D numpy array (a grid indexed
+        ``[i, j, k]`` = x, y, z with origin 0 and spacing 1; place it with
+        :func:`~trivsel.data.grid_from_array`); a pyvista (or VTK) dataset, image data
+        as a grid with its origin and spacing, others as scattered points; a nibabel
+        NIfTI image, as a ``.nii`` file is read; a file path (:func:`~trivsel.io.load`);
+        or a Table-1 function number or name, sampled on the ``(n+1)^3`` grid of eq. (18).
     fractions : sequence of float in (0, 1], optional
         Stop at these fractions of all points (fixed points included, rounded half
         up: 50 % of 4913 is 2457).  One run goes to the largest; the others are
@@ -140,6 +165,11 @@ _STOP_PARAMS = """    data : PointData, int or str
         below the tolerance (or when every candidate is inserted).
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
+    array : str, optional
+        The point-data array of a pyvista dataset or file (default: the active
+        scalars, or the only array).
+    volume : int, optional
+        The volume of a 4-D NIfTI image or file.
     boundary : (m, 3) int array, optional
         Prescribed boundary triangles of grid data (indices of its points): a closed,
         consistently oriented triangulation of the box's surface.  Section 3's start
@@ -163,13 +193,20 @@ _STOP_PARAMS = """    data : PointData, int or str
         seconds)`` with the current E_RMS and E_inf over all points."""
 
 
-def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, boundary=None, options=None,
-           threads=1, check=None, progress=None, **option_overrides):
+def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, array=None, volume=None,
+           boundary=None, options=None, threads=1, check=None, progress=None, **option_overrides):
     t_start = time.perf_counter()
     opts = _options(options, option_overrides)
     method = get_method(opts.method)
-    if not isinstance(data, PointData):
+    if isinstance(data, (str, numbers.Integral)) and not isinstance(data, bool):
+        if array is not None or volume is not None:
+            raise InputError(f"{'array' if array is not None else 'volume'}= applies to input data, "
+                             "not to a Table-1 function")
         data = sample_grid(resolve_function(data), n)
+    else:
+        from .io import from_object
+
+        data = from_object(data, array=array, volume=volume)
     method.check(data, opts)
     threads = check_threads(threads)
     fractions = validate_fractions(fractions)
