@@ -316,3 +316,19 @@ def test_errors_columns_say_what_the_data_is(tmp_path):
     v = trivsel.reduce(trivsel.grid_from_array(_volume(), name="scan"), fractions=[0.5]).error_rows()[0]
     assert (v["function"], v["n"], v["input"], v["n_points"]) == ("", "", "scan", 210)
     assert list(f) == list(v)
+
+
+def test_compare_matches_the_rows_of_two_file_runs(tmp_path, capsys):
+    """A file's run leaves function and n empty: ``trivsel compare`` matches its rows on
+    ``input`` and the empty cells, and still finds a changed value."""
+    np.save(tmp_path / "v.npy", _volume())
+    for d in ("a", "b"):
+        assert main(["reduce", str(tmp_path / "v.npy"), "--fractions", "0.5", "0.3", "--out", str(tmp_path / d)]) == 0
+    a, b = (str(tmp_path / d / "errors.csv") for d in "ab")
+    assert main(["compare", a, b]) == 0
+    table = pd.read_csv(b)
+    table.loc[0, "E_rms"] *= 1.01
+    table.to_csv(b, index=False)
+    capsys.readouterr()
+    assert main(["compare", a, b]) == 1
+    assert "[input=v, method=paper, values=data, fraction=0.3] E_rms: new" in capsys.readouterr().out
