@@ -224,6 +224,9 @@ def test_npy_loads_as_its_array_and_reduces_on_the_command_line(tmp_path):
     data = load(tmp_path / "v.npy")
     _same_data(data, trivsel.grid_from_array(vol))
     assert data.name == "v" and data.file_index is None
+    a, b = trivsel.reduce(tmp_path / "v.npy", fractions=[0.3]), trivsel.reduce(vol, fractions=[0.3])
+    np.testing.assert_array_equal(a.selected, b.selected)
+    assert a.data.name == "v" and a.snapshots[0].errors == b.snapshots[0].errors
     assert main(["reduce", str(tmp_path / "v.npy"), "--fractions", "0.3", "--out", str(tmp_path / "a")]) == 0
     np.savez(tmp_path / "v.npz", values=vol)
     assert main(["reduce", str(tmp_path / "v.npz"), "--fractions", "0.3", "--out", str(tmp_path / "b")]) == 0

@@ -152,8 +152,9 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
         ``[i, j, k]`` = x, y, z with origin 0 and spacing 1; place it with
         :func:`~trivsel.data.grid_from_array`); a pyvista (or VTK) dataset, image data
         as a grid with its origin and spacing, others as scattered points; a nibabel
-        NIfTI image, as a ``.nii`` file is read; a file path (:func:`~trivsel.io.load`);
-        or a Table-1 function number or name, sampled on the ``(n+1)^3`` grid of eq. (18).
+        NIfTI image, as a ``.nii`` file is read; a :class:`pathlib.Path` to a file
+        (:func:`~trivsel.io.load`); or a Table-1 function number or name (a ``str``),
+        sampled on the ``(n+1)^3`` grid of eq. (18).
     fractions : sequence of float in (0, 1], optional
         Stop at these fractions of all points (fixed points included, rounded half
         up: 50 % of 4913 is 2457).  One run goes to the largest; the others are
@@ -166,8 +167,8 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
     array : str, optional
-        The point-data array of a pyvista dataset or file (default: the active
-        scalars, or the only array).
+        The point-data array of a pyvista dataset or file (default: a dataset's
+        active scalars, or the only array).
     volume : int, optional
         The volume of a 4-D NIfTI image or file.
     boundary : (m, 3) int array, optional
