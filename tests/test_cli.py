@@ -12,8 +12,8 @@ import pyvista as pv
 from trivsel.cli import main
 from trivsel.data import sample_grid
 
-ERRORS_COLUMNS = ["function", "n", "method", "values", "fraction", "n_selected", "E_rms", "E_rms_interior",
-                  "E_inf", "E_inf_interior"]  # no wall times: they are in result.json
+ERRORS_COLUMNS = ["function", "n", "input", "n_points", "method", "values", "fraction", "n_selected", "E_rms",
+                  "E_rms_interior", "E_inf", "E_inf_interior"]  # no wall times: they are in result.json
 
 
 def test_reduce_function_writes_errors_meshes_and_json(tmp_path, capsys):
@@ -52,7 +52,9 @@ def test_vti_grid_takes_the_exact_path_and_keeps_spacing(tmp_path):
     assert main(["reduce", str(path), "--fractions", "0.3", "--out", str(a)]) == 0
     assert main(["reduce", "--function", "4", "--n", "6", "--fractions", "0.3", "--out", str(b)]) == 0
     ea, eb = pd.read_csv(a / "errors.csv"), pd.read_csv(b / "errors.csv")
-    assert ea.function[0] == "blob"
+    # a file's run names its input; function and n are those of Table-1 runs only
+    assert ea.input[0] == "blob" and ea.function.isna().all() and ea.n.isna().all()
+    assert (ea.n_points == 343).all() and (eb.function == 4).all() and (eb.n == 6).all() and eb.input.isna().all()
     assert np.allclose(ea[["E_rms", "E_inf", "E_rms_interior"]], eb[["E_rms", "E_inf", "E_rms_interior"]])
     info = json.loads((a / "result.json").read_text())
     assert info["data"]["grid"] and np.allclose(info["data"]["spacing"], 2 / 6)

@@ -173,7 +173,8 @@ def test_a_command_line_reduction_does_not_import_pandas_or_pyvista(tmp_path, so
             "print([m for m in ('pandas', 'pyvista', 'matplotlib', 'trivsel.study') if m in sys.modules])")
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
     assert out.strip().splitlines()[-1] == "[]"
-    assert (tmp_path / "out" / "errors.csv").read_text().startswith("function,n,method,values,fraction,")
+    assert (tmp_path / "out" / "errors.csv").read_text().startswith(
+        "function,n,input,n_points,method,values,fraction,")
 
 
 def test_no_import_cycles_in_the_library():

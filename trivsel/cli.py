@@ -39,8 +39,8 @@ def build_parser():
 
     r = sub.add_parser("reduce", help="select points and write the reduced meshes and their errors",
                        description="Reduce a Table-1 function sampled on a grid (--function, --n) or a user "
-                                   "file (.vti/.vtk/.vtu/.vtp/.vts/.vtr via VTK, .npz, .csv with x,y,z,value, "
-                                   ".nii/.nii.gz NIfTI, .nrrd/.nhdr NRRD).")
+                                   "file (.vti/.vtk/.vtu/.vtp/.vts/.vtr via VTK, .npz, .npy, .zarr, .csv with "
+                                   "x,y,z,value, .nii/.nii.gz NIfTI, .nrrd/.nhdr NRRD).")
     r.add_argument("input", nargs="?", help="data file (omit with --function)")
     r.add_argument("--function", help="Table-1 function: 1-5 or quadratic, saddle, cubic, exponential, "
                                       "trigonometric")

@@ -8,6 +8,9 @@ Input formats (:func:`load`):
   scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
+* ``.npy`` (a 3-D array; origin 0, spacing 1) and Zarr stores (``.zarr``, geometry from the
+  attributes ``origin`` and ``spacing``): read as ``trivsel blocks`` reads them
+  (:func:`trivsel.regions.open_volume`), a grid;
 * ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``);
 * ``.nii`` and ``.nii.gz`` (NIfTI-1/-2, read with nibabel): a grid of the voxel values with
   ``scl_slope``/``scl_inter`` applied (float64), placed by the image's affine (the sform if
@@ -26,6 +29,9 @@ NRRD point is its voxel's index into the file's 3-D voxel array in Fortran order
 axis fastest, as stored, and as a VTK point id counts), within the chosen volume:
 ``value == data[..., K].ravel(order="F")[original_index]`` for nibabel's ``get_fdata()`` or
 pynrrd's array (with the non-spatial axis last).
+
+In-memory data (numpy arrays, pyvista datasets, nibabel images) take the same code paths
+(:func:`from_object`).
 
 Outputs (:func:`write_outputs`) go first to a temporary folder inside the target
 and are moved into place only when all of them are complete, so a failure never
@@ -49,7 +55,7 @@ import numpy as np
 from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError, one_line
 
-__all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
+__all__ = ["READERS", "MANIFEST", "load", "from_object", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
            "snapshot_to_pyvista", "tetra_grid", "write_vtu",
            "fraction_label"]
 
@@ -59,7 +65,9 @@ def fraction_label(fraction: float) -> str:
     return f"{float(fraction):g}"
 
 
-def _pick_array(names, array, path):
+def _pick_array(names, array, path, option="--array"):
+    """The array to reduce: ``array`` if given (it must be in ``names``), else the only one;
+    ``option`` is how the message tells the user to choose (``--array``, ``array=``)."""
     names = list(names)
     if array is not None:
         if array not in names:
@@ -69,7 +77,7 @@ def _pick_array(names, array, path):
         return names[0]
     if not names:
         raise InputError(f"{path} has no point-data array to reduce")
-    raise InputError(f"{path} has several point-data arrays ({', '.join(names)}); choose one with --array")
+    raise InputError(f"{path} has several point-data arrays ({', '.join(names)}); choose one with {option}")
 
 
 def _read_csv(p, array):
@@ -149,7 +157,6 @@ def _read_vtk_dataset(p, what=None):
     """
     import importlib
 
-    from vtkmodules.util.numpy_support import vtk_to_numpy
     from vtkmodules.vtkCommonCore import vtkLogger, vtkOutputWindow, vtkStringOutputWindow
 
     p = Path(p)
@@ -170,20 +177,33 @@ def _read_vtk_dataset(p, what=None):
     if error or ds is None or ds.GetNumberOfPoints() == 0:
         name = f"{what} {str(p)!r}" if what else f"{str(p)!r} as a VTK file"
         raise InputError(f"cannot read {name}: {error or 'no points in it'}")
+    return ds, _vtk_point_arrays(ds)
+
+
+def _vtk_point_arrays(ds):
+    """The numeric, named point-data arrays of a VTK dataset as ``{name: numpy array}`` (copies)."""
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
     pd = ds.GetPointData()
     arrays = {}
     for i in range(pd.GetNumberOfArrays()):
         a = pd.GetArray(i)  # None for string and other non-numeric arrays
         if a is not None and a.GetName():
             arrays[a.GetName()] = np.array(vtk_to_numpy(a))
-    return ds, arrays
+    return arrays
 
 
 def _read_vtk(p, array):
     """VTK files, read with VTK's readers: image data is a grid (exact integer path, origin
     and spacing kept); any other dataset gives scattered points."""
     ds, arrays = _read_vtk_dataset(p)
-    col = _pick_array(arrays.keys(), array, p)
+    return _vtk_data(ds, arrays, _pick_array(arrays.keys(), array, p), p, p.stem)
+
+
+def _vtk_data(ds, arrays, col, p, name) -> PointData:
+    """A VTK dataset's point array ``col`` as :class:`PointData`: image data as a grid (its
+    origin, spacing and extent kept, a rotated direction refused, ``file_index`` the VTK point
+    id), any other dataset as scattered points.  ``p`` names the data in messages."""
     vals = arrays[col]
     if vals.ndim != 1:
         raise InputError(f"array {col!r} in {str(p)!r} has {vals.shape[1]} components; need a scalar array")
@@ -198,11 +218,11 @@ def _read_vtk(p, array):
         spacing = np.asarray(ds.GetSpacing(), float)
         # the first point sits at origin + extent_min * spacing, not at the origin
         origin = np.asarray(ds.GetOrigin(), float) + np.asarray(ds.GetExtent()[0::2], float) * spacing
-        data = grid_from_array(v3, origin, spacing, name=p.stem)
+        data = grid_from_array(v3, origin, spacing, name=name)
         i, j, k = data.ijk.T
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
-    return scattered(np.asarray(_vtk_points(ds), float), vals, name=p.stem)
+    return scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
 
 
 def _vtk_points(ds):
@@ -324,11 +344,20 @@ def open_nifti(p, array, volume, *, keep_file_open=False):
     _no_array(p, array)
     try:
         img = nib.load(str(p), keep_file_open=keep_file_open)
-        shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
+        img.shape, img.get_data_dtype()  # a damaged header fails here, inside the try
     except Exception as exc:  # nibabel raises many types for damaged files
         raise InputError(f"cannot read {str(p)!r} as NIfTI: {one_line(exc)}") from None
+    return (img, *_nifti_header(p, img, volume))
+
+
+def _nifti_header(p, img, volume):
+    """``(shape, dtype, k, affine)`` of a nibabel image, checked as :func:`open_nifti` describes
+    (``p`` names it in messages)."""
+    import nibabel as nib
+
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
         raise InputError(f"{str(p)!r} is not a NIfTI image (nibabel reads it as {type(img).__name__})")
+    shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
     _check_voxel_dtype(p, dtype)
     k = _volume_index(p, shape, volume)
     if int(hdr["sform_code"]) == 0 and int(hdr["qform_code"]) == 0:
@@ -337,13 +366,18 @@ def open_nifti(p, array, volume, *, keep_file_open=False):
         affine = np.diag([*np.asarray(hdr["pixdim"][1:4], float), 1.0])
     else:
         affine = np.asarray(img.affine, float)
-    return img, shape, dtype, k, affine
+    return shape, dtype, k, affine
 
 
 def _read_nifti(p, array, *, volume=None):
     """A NIfTI image through nibabel (see the module docstring): scaled values (float64),
     placement by the affine, flipped and permuted axes undone, oblique images refused."""
     img, shape, _, k, affine = open_nifti(p, array, volume)
+    return _nifti_grid(p, img, shape, k, affine, volume, _stem(p))
+
+
+def _nifti_grid(p, img, shape, k, affine, volume, name) -> PointData:
+    """The voxels of volume ``k`` of a checked NIfTI image (:func:`_nifti_header`) as grid data."""
     from .resources import check_memory
 
     check_memory(8.0 * float(np.prod(shape)), f"reading {str(p)!r} (shape {tuple(shape)})")
@@ -352,7 +386,7 @@ def _read_nifti(p, array, *, volume=None):
     except Exception as exc:  # truncated or corrupt data
         raise InputError(f"cannot read the voxels of {str(p)!r}: {one_line(exc)}") from None
     values = values.reshape(tuple(shape[:3]) + (-1,))[..., k]
-    return _voxel_grid(p, values, affine[:3, :3], affine[:3, 3], "affine", _stem(p),
+    return _voxel_grid(p, values, affine[:3, :3], affine[:3, 3], "affine", name,
                        meta={} if volume is None else {"volume": k})
 
 
@@ -414,11 +448,28 @@ def _read_nrrd(p, array, *, volume=None):
     return _voxel_grid(p, values, matrix, origin, what, _stem(p), meta={} if volume is None else {"volume": k})
 
 
+def _read_region_volume(p, array):
+    """A ``.npy`` array or a Zarr store, read as ``trivsel blocks`` reads it
+    (:func:`trivsel.regions.open_volume`): the same geometry (a store's ``origin`` and
+    ``spacing`` attributes), the same float64 values (integers beyond 2^53 refused) and, for a
+    store that ``trivsel convert`` wrote, the original file's point ids.  The memory is checked
+    from the header before the values are read."""
+    from .regions import open_volume
+
+    vol = open_volume(p, array=array)
+    r = vol.region_data(tuple((0, s) for s in vol.shape))
+    ids = r.file_index
+    return PointData(points=r.points, values=r.values, ijk=r.ijk, shape=r.shape, origin=r.origin,
+                     spacing=r.spacing, name=_stem(p), meta=dict(vol.meta),
+                     file_index=None if np.array_equal(ids, np.arange(len(ids))) else ids)
+
+
 #: File suffix -> reader ``(path, array) -> PointData``; :func:`load` dispatches on it.  A
 #: reader of images with several volumes also takes a keyword-only ``volume``.
-READERS = {".csv": _read_csv, ".npz": _read_npz, ".vti": _read_vtk, ".vtk": _read_vtk, ".vtu": _read_vtk,
-           ".vtp": _read_vtk, ".vts": _read_vtk, ".vtr": _read_vtk, ".nii": _read_nifti, ".nii.gz": _read_nifti,
-           ".nrrd": _read_nrrd, ".nhdr": _read_nrrd}
+READERS = {".csv": _read_csv, ".npz": _read_npz, ".npy": _read_region_volume, ".zarr": _read_region_volume,
+           ".vti": _read_vtk, ".vtk": _read_vtk, ".vtu": _read_vtk, ".vtp": _read_vtk, ".vts": _read_vtk,
+           ".vtr": _read_vtk, ".nii": _read_nifti, ".nii.gz": _read_nifti, ".nrrd": _read_nrrd,
+           ".nhdr": _read_nrrd}
 
 
 def _suffix(p) -> str:
@@ -434,9 +485,10 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
     Parameters
     ----------
     path : str or path-like
-        The input file.
+        The input file (a Zarr store: its folder).
     array : str, optional
-        The point-data array or value column to reduce (files with named arrays).
+        The point-data array or value column to reduce (files with named arrays), or the
+        array of a Zarr group.
     volume : int, optional
         The volume of a 4-D NIfTI or NRRD image, ``0 <= volume < n_volumes`` (required
         when the image has more than one); refused for other formats.
@@ -462,6 +514,75 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
     if "volume" not in inspect.signature(reader).parameters:
         raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
     return reader(p, array, volume=int(volume))
+
+
+def from_object(obj, *, array: str | None = None, volume: int | None = None) -> PointData:
+    """In-memory data as :class:`~trivsel.data.PointData`, by the readers' own code paths.
+
+    * :class:`~trivsel.data.PointData`: itself;
+    * a numpy array: a 3-D grid indexed ``[i, j, k]`` = x, y, z with origin 0 and spacing 1
+      (:func:`~trivsel.data.grid_from_array` places it otherwise);
+    * a VTK or pyvista dataset: image data (``pyvista.ImageData``) as a grid with the origin,
+      spacing and extent of a ``.vti`` file; any other dataset (``UnstructuredGrid``,
+      ``PolyData``, ...) as scattered points.  The value array is ``array``, or else the
+      active scalars, or else the only point-data array;
+    * a nibabel NIfTI image (``Nifti1Image``, ``Nifti2Image``): as a ``.nii`` file is read
+      (its scaled values, placed by its affine; ``volume`` of a 4-D image);
+    * a path (:class:`os.PathLike`): :func:`load`.
+
+    Neither pyvista, VTK nor nibabel is imported here: an object of theirs can only exist
+    once its module is.
+
+    Raises
+    ------
+    InputError
+        One line naming the object's type: an unsupported type, or what the reader refuses.
+    """
+    import sys
+
+    if isinstance(obj, os.PathLike):
+        return load(obj, array, volume=volume)
+    package = type(obj).__module__.split(".")[0]
+    kind = type(obj).__name__ if package == "builtins" else f"{package}.{type(obj).__name__}"
+    vtk = sys.modules.get("vtkmodules.vtkCommonDataModel")
+    if vtk is not None and isinstance(obj, vtk.vtkDataSet):
+        _no_volume(kind, volume)
+        return _vtk_object(obj, array, kind)
+    nib = sys.modules.get("nibabel")
+    if nib is not None and isinstance(obj, nib.spatialimages.SpatialImage):
+        _no_array(kind, array)
+        if volume is not None and (isinstance(volume, bool) or not isinstance(volume, numbers.Integral)):
+            raise InputError(f"volume must be an integer, got {volume!r}")
+        shape, _, k, affine = _nifti_header(kind, obj, volume)
+        filename = obj.get_filename()
+        name = _stem(Path(filename)) if filename else type(obj).__name__
+        return _nifti_grid(kind, obj, shape, k, affine, volume, name)
+    for option, value in (("array", array), ("volume", volume)):
+        if value is not None:
+            raise InputError(f"{option}={value!r} applies to files, pyvista datasets and nibabel images, "
+                             f"not to a {kind}")
+    if isinstance(obj, PointData):
+        return obj
+    if isinstance(obj, np.ndarray):
+        return grid_from_array(obj, name="array")
+    raise InputError(f"cannot take a {kind} as data: give a PointData, a 3-D numpy array, a pyvista dataset, "
+                     "a nibabel image, a file path or a Table-1 function")
+
+
+def _no_volume(kind, volume):
+    if volume is not None:
+        raise InputError(f"volume={volume!r} applies to 4-D NIfTI and NRRD images, not to a {kind}")
+
+
+def _vtk_object(ds, array, kind) -> PointData:
+    """A VTK or pyvista dataset as :class:`PointData` (:func:`_vtk_data`, as for a file)."""
+    if ds.GetNumberOfPoints() == 0:
+        raise InputError(f"the {kind} has no points")
+    arrays = _vtk_point_arrays(ds)
+    active = ds.GetPointData().GetScalars()
+    if array is None and active is not None and active.GetName() in arrays:
+        array = active.GetName()
+    return _vtk_data(ds, arrays, _pick_array(arrays, array, kind, option="array="), kind, type(ds).__name__)
 
 
 def save_npz(data: PointData, path):
@@ -595,6 +716,9 @@ def check_output_dir(out_dir, inputs=()):
         if ip == resolved or resolved in ip.parents:
             raise InputError(f"input file {str(inp)!r} is inside the output folder {str(out)!r}: "
                              "choose another --out (trivsel never writes over its input)")
+        if ip.is_dir() and ip in resolved.parents:  # a Zarr store is a folder
+            raise InputError(f"the output folder {str(out)!r} is inside the input {str(inp)!r}: "
+                             "choose another --out (trivsel never writes into its input)")
     probe = resolved
     while not probe.exists():
         probe = probe.parent

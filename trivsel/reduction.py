@@ -11,12 +11,13 @@ optionally least-squares vertex values on the same mesh.
 from __future__ import annotations
 
 import inspect
+import numbers
 import time
 from dataclasses import replace
 
 import numpy as np
 
-from .data import PointData, sample_grid
+from .data import sample_grid
 from .exceptions import InputError, check_threads
 from .functions import resolve_function
 from .methods import get_method
@@ -27,9 +28,14 @@ from .selection import validate_fractions
 
 __all__ = ["reduce", "ReductionResult", "Snapshot"]
 
-_STOP_PARAMS = """    data : PointData, int or str
-        The data; a Table-1 function number or name is sampled on the ``(n+1)^3``
-        grid of eq. (18).
+_STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel image, path, int or str
+        The data: :class:`~trivsel.data.PointData`; a 3-D numpy array (a grid indexed
+        ``[i, j, k]`` = x, y, z with origin 0 and spacing 1; place it with
+        :func:`~trivsel.data.grid_from_array`); a pyvista (or VTK) dataset, image data
+        as a grid with its origin and spacing, others as scattered points; a nibabel
+        NIfTI image, as a ``.nii`` file is read; a :class:`pathlib.Path` to a file
+        (:func:`~trivsel.io.load`); or a Table-1 function number or name (a ``str``),
+        sampled on the ``(n+1)^3`` grid of eq. (18).
     fractions : sequence of float in (0, 1], optional
         Stop at these fractions of all points (fixed points included, rounded half
         up: 50 % of 4913 is 2457).  One run goes to the largest; the others are
@@ -41,6 +47,11 @@ _STOP_PARAMS = """    data : PointData, int or str
         below the tolerance (or when every candidate is inserted).
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
+    array : str, optional
+        The point-data array of a pyvista dataset or file (default: a dataset's
+        active scalars, or the only array).
+    volume : int, optional
+        The volume of a 4-D NIfTI image or file.
     boundary : (m, 3) int array, optional
         Prescribed boundary triangles of grid data (indices of its points): a closed,
         consistently oriented triangulation of the box's surface.  Section 3's start
@@ -64,13 +75,20 @@ _STOP_PARAMS = """    data : PointData, int or str
         seconds)`` with the current E_RMS and E_inf over all points."""
 
 
-def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, boundary=None, options=None,
-           threads=1, check=None, progress=None, **option_overrides):
+def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, array=None, volume=None,
+           boundary=None, options=None, threads=1, check=None, progress=None, **option_overrides):
     t_start = time.perf_counter()
     opts = _options(options, option_overrides)
     method = get_method(opts.method)
-    if not isinstance(data, PointData):
+    if isinstance(data, (str, numbers.Integral)) and not isinstance(data, bool):
+        if array is not None or volume is not None:
+            raise InputError(f"{'array' if array is not None else 'volume'}= applies to input data, "
+                             "not to a Table-1 function")
         data = sample_grid(resolve_function(data), n)
+    else:
+        from .io import from_object
+
+        data = from_object(data, array=array, volume=volume)
     method.check(data, opts)
     threads = check_threads(threads)
     fractions = validate_fractions(fractions)

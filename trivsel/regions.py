@@ -292,8 +292,8 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     elif suffix in READERS:
         return _whole_volume(p, array, volume)
     else:
-        raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: read .zarr, .npy, "
-                         f"{', '.join(READERS)}")
+        raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: read "
+                         f"{', '.join(dict.fromkeys(['.zarr', '.npy', *READERS]))}")
     if opener in (_zarr_volume, _npy_volume) and volume is not None:
         raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
     return opener(p, array, volume)

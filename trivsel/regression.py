@@ -6,9 +6,9 @@ number has moved beyond a tolerance::
 
     trivsel compare results/report/table1.csv tests/golden/table1.csv --rtol 1e-6
 
-Rows are matched on their key columns (``function``, ``n``, ``fraction`` and
-option columns, whichever both tables have), not on their order, so a reordered
-table still passes.  Every numeric column of the golden table other than the
+Rows are matched on their key columns (``function``, ``n``, ``input``, ``fraction``
+and option columns, whichever both tables have; empty cells match empty cells), not
+on their order, so a reordered table still passes.  Every numeric column of the golden table other than the
 keys and the wall-clock columns (``seconds`` ...) is compared cell by cell with
 ``|new - golden| <= atol + rtol * |golden|`` (NaN equals NaN); integer columns
 (point counts such as ``n_selected``) must match exactly.  Missing or extra rows
@@ -28,7 +28,7 @@ from .options import option_fields
 __all__ = ["Mismatch", "compare_tables", "compare_frames", "format_mismatches", "KEY_COLUMNS", "IGNORED_COLUMNS"]
 
 #: Columns that identify a row (used when present in both tables).
-KEY_COLUMNS = ("function", "n", "variant", *(f.name for f in option_fields()), "fraction")
+KEY_COLUMNS = ("function", "n", "input", "variant", *(f.name for f in option_fields()), "fraction")
 #: Columns never compared: wall-clock times vary from run to run.
 IGNORED_COLUMNS = ("seconds", "wall_seconds", "reduce_seconds", "time", "timestamp")
 
@@ -58,7 +58,7 @@ class Mismatch:
 
 
 def _row_label(keys, values) -> str:
-    return ", ".join(f"{k}={_fmt_key(v)}" for k, v in zip(keys, values)) or "<all>"
+    return ", ".join(f"{k}={_fmt_key(v)}" for k, v in zip(keys, values) if v != "") or "<all>"
 
 
 def _fmt_key(v):
@@ -70,8 +70,9 @@ def _fmt_key(v):
 def _key_tuple(df: pd.DataFrame, keys) -> list:
     out = []
     for rec in df[list(keys)].itertuples(index=False, name=None):
-        # round floats so that 0.1 written as 0.10 or 0.1000000001 match
-        out.append(tuple(round(v, 9) if isinstance(v, float) else v for v in rec))
+        # round floats so that 0.1 written as 0.10 or 0.1000000001 match; an empty cell (NaN:
+        # errors.csv leaves function and n empty for a file's run) matches an empty cell
+        out.append(tuple(("" if v != v else round(v, 9)) if isinstance(v, float) else v for v in rec))
     return out
 
 

@@ -75,6 +75,16 @@ class ReductionResult:
         """The snapshot for ``fraction`` (nearest match)."""
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 
+    def to_pyvista(self, fraction=None):
+        """The mesh of the snapshot for ``fraction`` (nearest match; default the last, largest)
+        as a ``pyvista.UnstructuredGrid`` of tetrahedra: the same points, cells, point arrays
+        (``value``, ``original_index``, ``curvature``, ``fitted_value`` with
+        ``values=["data", "fit"]``) and field data as ``mesh_<fraction>.vtu`` of
+        ``trivsel reduce`` (:func:`trivsel.io.snapshot_to_vtk` builds both)."""
+        from .io import snapshot_to_pyvista
+
+        return snapshot_to_pyvista(self, self.snapshots[-1] if fraction is None else self.snapshot(fraction))
+
     def errors_frame(self):
         """One row per snapshot with the columns of ``errors.csv``, as a pandas DataFrame.
 
@@ -85,14 +95,24 @@ class ReductionResult:
         return pd.DataFrame(self.error_rows())
 
     def error_rows(self):
-        """The rows of :meth:`errors_frame` as a list of dicts (column order kept)."""
+        """The rows of :meth:`errors_frame` as a list of dicts (column order kept).
+
+        The data's columns: ``function`` and ``n`` (the Table-1 function and its grid
+        intervals per axis) for a function grid, empty otherwise; ``input`` (the data's
+        name: a file's name without its suffix, or the name given to
+        :func:`~trivsel.data.grid_from_array`), empty for a function grid; ``n_points``,
+        the number of points of the data."""
+        meta = self.data.meta
+        function = "function" in meta
         rows = []
         for mode in self.options.get("values", ["data"]):
             for s in self.snapshots:
                 err = s.errors if mode == "data" else s.fit["errors"]
                 rows.append({
-                    "function": self.data.name,
-                    "n": self.data.meta.get("n", (self.data.shape[0] - 1) if self.data.shape else ""),
+                    "function": meta["function"] if function else "",
+                    "n": meta["n"] if function else "",
+                    "input": "" if function else self.data.name,
+                    "n_points": self.data.n_points,
                     "method": self.options["method"],
                     "values": mode,
                     "fraction": s.fraction,
