@@ -66,7 +66,7 @@ def seams(a):
     from trivsel import reduce
     from trivsel.blocks import check_tetrahedra, plan_blocks
     from trivsel.data import sample_grid
-    from trivsel.regions import open_volume
+    from trivsel.io.regions import open_volume
 
     from trivsel.data import grid_from_array
 
@@ -103,7 +103,7 @@ def local(a):
     from trivsel import reduce
     from trivsel.blocks import check_tetrahedra, plan_blocks
     from trivsel.data import grid_from_array
-    from trivsel.regions import open_volume
+    from trivsel.io.regions import open_volume
 
     vol = _Crop(open_volume(a.input), a.n + 1)
     whole = grid_from_array(vol.read(tuple((0, s) for s in vol.shape)))
@@ -191,7 +191,7 @@ def icbm(a):
         t0 = time.perf_counter()
         subprocess.run([sys.executable, "-m", "trivsel", "convert", str(src), str(store)], check=True)
         print(f"converted in {time.perf_counter() - t0:.1f} s")
-    from trivsel.regions import open_volume
+    from trivsel.io.regions import open_volume
 
     shape = open_volume(store).shape
     out = RESULTS / f"icbm152_b{a.block}"

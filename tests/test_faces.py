@@ -1,10 +1,10 @@
-"""Block edges and faces (trivsel.faces): 1-D and 2-D greedy selection and the face mesh contract."""
+"""Block edges and faces (trivsel.blocks.faces): 1-D and 2-D greedy selection and the face mesh contract."""
 
 import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from trivsel.faces import check_face_mesh, face_residuals, reduce_face, reduce_polyline
+from trivsel.blocks.faces import check_face_mesh, face_residuals, reduce_face, reduce_polyline
 
 # Residuals are recomputed here by other formulas than the kernel's: rounding may differ.
 SLACK = 1e-12

@@ -249,7 +249,7 @@ def test_npy_integers_are_exact_or_refused(tmp_path):
 
 
 def test_zarr_from_convert_loads_as_its_source(tmp_path):
-    from trivsel.regions import convert
+    from trivsel.io.regions import convert
 
     g = _image()
     g.point_data.remove("label")
@@ -268,7 +268,7 @@ def test_zarr_from_convert_loads_as_its_source(tmp_path):
 
 def test_an_output_inside_a_zarr_input_is_refused(tmp_path, capsys):
     np.save(tmp_path / "v.npy", _volume())
-    from trivsel.regions import convert
+    from trivsel.io.regions import convert
 
     convert(tmp_path / "v.npy", tmp_path / "v.zarr")
     before = sorted(p.name for p in (tmp_path / "v.zarr").rglob("*"))
@@ -297,7 +297,7 @@ def test_a_zarr_store_with_several_arrays_needs_one(tmp_path):
 
 
 def test_npy_memory_is_checked_before_reading(tmp_path, monkeypatch):
-    import trivsel.regions as regions
+    import trivsel.io.regions as regions
     import trivsel.resources as res
 
     np.save(tmp_path / "v.npy", _volume())

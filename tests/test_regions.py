@@ -1,5 +1,5 @@
-"""Volumes read by region (trivsel.regions), `trivsel convert` to Zarr, and partitioned output
-(trivsel.pieces): a region holds exactly the whole volume's points there, bit for bit."""
+"""Volumes read by region (trivsel.io.regions), `trivsel convert` to Zarr, and partitioned output
+(trivsel.io.pieces): a region holds exactly the whole volume's points there, bit for bit."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ import trivsel
 from trivsel.cli import main
 from trivsel.data import PointData, grid_from_array
 from trivsel.io import load
-from trivsel.regions import RegionData, check_region, convert, open_volume
+from trivsel.io.regions import RegionData, check_region, convert, open_volume
 
 REGIONS = [((0, 5), (0, 6), (0, 7)), ((1, 4), (2, 6), (3, 7)), ((4, 5), (0, 6), (6, 7)), ((0, 2), (5, 6), (0, 1))]
 
@@ -331,7 +331,7 @@ def test_convert_refuses_existing_output_and_leaves_nothing_on_failure(tmp_path,
     assert main(["convert", str(tmp_path / "a.npy"), str(tmp_path / "c.zarr"), "--chunks", "0"]) == 2
     assert "chunks must be an integer >= 1" in capsys.readouterr().err
 
-    from trivsel import regions
+    from trivsel.io import regions
 
     reads = []
 
@@ -352,7 +352,7 @@ def test_convert_refuses_existing_output_and_leaves_nothing_on_failure(tmp_path,
 
 def _two_pieces(tmp_path):
     """Two blocks of a 5^3 grid that share the plane i = 2, Kuhn-split, as pieces."""
-    from trivsel.pieces import write_piece
+    from trivsel.io.pieces import write_piece
     from trivsel.triangulation import kuhn_tetrahedra
 
     vol = open_volume(function=2, n=4)
@@ -367,7 +367,7 @@ def _two_pieces(tmp_path):
 
 
 def test_pvtu_and_vtm_open_as_all_pieces(tmp_path):
-    from trivsel.pieces import write_pvtu, write_vtm
+    from trivsel.io.pieces import write_pvtu, write_vtm
 
     vol, paths, n_tets = _two_pieces(tmp_path)
     piece = pv.read(paths[0])
@@ -392,7 +392,7 @@ def test_pvtu_and_vtm_open_as_all_pieces(tmp_path):
 def test_a_damaged_or_foreign_piece_is_one_line(tmp_path):
     """merge_pieces and write_pvtu name the piece VTK cannot read (and VTK's first error), a
     piece without ``value`` or ``original_index``, and a piece with cells other than tetrahedra."""
-    from trivsel.pieces import merge_pieces, write_pvtu
+    from trivsel.io.pieces import merge_pieces, write_pvtu
 
     vol, paths, n_tets = _two_pieces(tmp_path)
     cut = tmp_path / "cut.vtu"
@@ -417,7 +417,7 @@ def test_a_damaged_or_foreign_piece_is_one_line(tmp_path):
 
 
 def test_merge_dedups_shared_points_and_keeps_every_tet(tmp_path):
-    from trivsel.pieces import merge_pieces, write_piece
+    from trivsel.io.pieces import merge_pieces, write_piece
 
     vol, paths, n_tets = _two_pieces(tmp_path)
     merged = pv.read(merge_pieces(paths, tmp_path / "merged.vtu"))

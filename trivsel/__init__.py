@@ -16,11 +16,11 @@ piecewise trilinear approximation*.  Modules follow the paper:
 * :mod:`trivsel.fitting` - least-squares vertex values on a mesh;
 * :mod:`trivsel.options` - every option, defined once (:class:`Options`);
 * :mod:`trivsel.reduction` - :func:`reduce`, the whole method; :mod:`trivsel.result` what it returns;
-* :mod:`trivsel.io` - reading user files, writing results;
-* :mod:`trivsel.regions` - volumes read by region (Zarr, ``.npy``, raw NRRD, NIfTI, functions);
-* :mod:`trivsel.faces` - the 1-D and 2-D reductions of a block's lines and faces;
-* :mod:`trivsel.blocks` - large grids in blocks with conforming seams (``trivsel blocks``);
-* :mod:`trivsel.pieces` - partitioned output (``.vtu`` pieces, ``.pvtu``, ``.vtm``, merging);
+* :mod:`trivsel.io` - reading user files and objects, writing results; :mod:`trivsel.io.regions` volumes
+  read by region (Zarr, ``.npy``, raw NRRD, NIfTI, functions), :mod:`trivsel.io.pieces` partitioned output
+  (``.vtu`` pieces, ``.pvtu``, ``.vtm``, merging);
+* :mod:`trivsel.blocks` - large grids in blocks with conforming seams (``trivsel blocks``), and
+  :mod:`trivsel.blocks.faces`, the 1-D and 2-D reductions of a block's lines and faces;
 * :mod:`trivsel.regression` - comparing error tables against golden ones.
 
 ``import trivsel`` is cheap: :func:`reduce` and :func:`load` import the compiled
@@ -40,9 +40,9 @@ _LAZY = {"Options": ("options", "Options"), "reduce": ("reduction", "reduce"),
          "write_outputs": ("io", "write_outputs"), "PointData": ("data", "PointData"),
          "grid_from_array": ("data", "grid_from_array"), "sample_grid": ("data", "sample_grid"),
          "scattered": ("data", "scattered"), "FUNCTIONS": ("functions", "FUNCTIONS")}
-_SUBMODULES = {"blocks", "cli", "curvature", "data", "decimation", "exceptions", "faces", "fitting", "functions", "io", "mesh",
-               "methods", "norms", "options", "pieces", "predicates", "reduction", "regions", "regression",
-               "resources", "result", "selection", "study", "triangulation"}
+_SUBMODULES = {"aot", "blocks", "cli", "curvature", "data", "decimation", "exceptions", "fitting", "functions", "io",
+               "mesh", "methods", "norms", "options", "predicates", "reduction", "regression", "resources", "result",
+               "selection", "study", "triangulation"}
 
 
 def __getattr__(name):

@@ -200,7 +200,7 @@ def _cmd_reduce(a):
                         boundary=boundary, options=options, threads=a.threads, check=check,
                         progress=_progress_line if show else None)
     except MemoryShortage as exc:
-        hint = _blocks_hint(a, exc.available)
+        hint = _blocks_hint(a, options.method, exc.available)
         raise InputError(f"{exc}; {hint}" if hint else str(exc)) from None
     out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
     print(format_rows(result.error_rows()))
@@ -209,7 +209,7 @@ def _cmd_reduce(a):
     return 0
 
 
-def _blocks_hint(a, available):
+def _blocks_hint(a, chosen, available):
     """The ``trivsel blocks`` command line that does the job of the reduce command ``a`` in
     bounded memory, as a phrase for a memory refusal, or None (scattered input, or a
     prescribed boundary: blocks cut grids into boxes of their own)."""
@@ -221,7 +221,7 @@ def _blocks_hint(a, available):
     if a.boundary is not None:
         return None
     if a.input is not None:
-        from .regions import open_volume
+        from .io.regions import open_volume
 
         try:
             open_volume(a.input, array=a.array, volume=a.volume)  # its header: is it a grid?
@@ -232,14 +232,14 @@ def _blocks_hint(a, available):
     else:
         source = ["--function", str(a.function), "--n", str(a.n)]
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
-    method = a.method if get_method(a.method).PRESCRIBED_BOUNDARY else "greedy"
+    method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
     tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"
     cmd = ["trivsel", "blocks", *source, "--block", str(block_for_memory(available)), "--tol-inf", tol,
            "--method", method, "--out", a.out, "-c", "2"]
     notes = []
     if a.tol_inf is None:
         notes.append("blocks stop at an E_inf tolerance TOL")
-    if method != a.method:
+    if method != chosen:
         notes.append(f"they run {' or '.join(able)}")
     return ("in blocks of bounded memory: " + shlex.join(cmd)
             + (f" ({'; '.join(notes)})" if notes else ""))
@@ -302,7 +302,7 @@ def _cmd_compare(a):
 def _cmd_convert(a):
     import time
 
-    from .regions import convert
+    from .io.regions import convert
 
     t0 = time.perf_counter()
     out = convert(a.input, a.output, chunks=a.chunks, array=a.array, volume=a.volume)

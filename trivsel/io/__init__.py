@@ -10,7 +10,7 @@ Input formats (:func:`load`):
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
 * ``.npy`` (a 3-D array; origin 0, spacing 1) and Zarr stores (``.zarr``, geometry from the
   attributes ``origin`` and ``spacing``): read as ``trivsel blocks`` reads them
-  (:func:`trivsel.regions.open_volume`), a grid;
+  (:func:`trivsel.io.regions.open_volume`), a grid;
 * ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``);
 * ``.nii`` and ``.nii.gz`` (NIfTI-1/-2, read with nibabel): a grid of the voxel values with
   ``scl_slope``/``scl_inter`` applied (float64), placed by the image's affine (the sform if
@@ -52,8 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import PointData, grid_from_array, scattered
-from .exceptions import InputError, one_line
+from ..data import PointData, grid_from_array, scattered
+from ..exceptions import InputError, one_line
 
 __all__ = ["READERS", "MANIFEST", "load", "from_object", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
            "snapshot_to_pyvista", "tetra_grid", "write_vtu",
@@ -378,7 +378,7 @@ def _read_nifti(p, array, *, volume=None):
 
 def _nifti_grid(p, img, shape, k, affine, volume, name) -> PointData:
     """The voxels of volume ``k`` of a checked NIfTI image (:func:`_nifti_header`) as grid data."""
-    from .resources import check_memory
+    from ..resources import check_memory
 
     check_memory(8.0 * float(np.prod(shape)), f"reading {str(p)!r} (shape {tuple(shape)})")
     try:
@@ -450,7 +450,7 @@ def _read_nrrd(p, array, *, volume=None):
 
 def _read_region_volume(p, array):
     """A ``.npy`` array or a Zarr store, read as ``trivsel blocks`` reads it
-    (:func:`trivsel.regions.open_volume`): the same geometry (a store's ``origin`` and
+    (:func:`trivsel.io.regions.open_volume`): the same geometry (a store's ``origin`` and
     ``spacing`` attributes), the same float64 values (integers beyond 2^53 refused) and, for a
     store that ``trivsel convert`` wrote, the original file's point ids.  The memory is checked
     from the header before the values are read."""

@@ -52,8 +52,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import PointData
-from .exceptions import InputError, one_line
+from ..data import PointData
+from ..exceptions import InputError, one_line
 
 __all__ = ["Volume", "RegionData", "open_volume", "check_region", "convert"]
 
@@ -212,7 +212,7 @@ class Volume:
         shape = tuple(b - a for a, b in r)
         if min(shape) < 2:
             raise InputError(f"region {r} has shape {shape}: a grid needs at least 2 points per axis")
-        from .resources import GRID_BYTES_PER_POINT, check_memory
+        from ..resources import GRID_BYTES_PER_POINT, check_memory
 
         check_memory(GRID_BYTES_PER_POINT * float(np.prod(shape)), f"region {r} ({shape} points)")
         values = self.read(r)
@@ -278,7 +278,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     p = Path(path)
     if not p.exists():
         raise InputError(f"input file {str(p)!r} does not exist")
-    from .io import READERS, _suffix
+    from . import READERS, _suffix
 
     suffix = _suffix(p)
     if suffix == ".zarr" or (p.is_dir() and any((p / f).exists() for f in ("zarr.json", ".zarray", ".zgroup"))):
@@ -301,7 +301,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
 
 def _function_volume(function, n):
     """A Table-1 function on the grid of :func:`~trivsel.data.sample_grid`, evaluated per region."""
-    from .functions import FUNCTIONS, resolve_function
+    from ..functions import FUNCTIONS, resolve_function
 
     num = resolve_function(function)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
@@ -348,7 +348,7 @@ def _zarr_volume(p, array, volume):
     (or its only one); geometry from the attributes ``origin`` and ``spacing``."""
     import zarr
 
-    from .io import _check_voxel_dtype, _pick_array
+    from . import _check_voxel_dtype, _pick_array
 
     try:
         node = zarr.open(store=str(p), mode="r")
@@ -381,7 +381,7 @@ def _zarr_volume(p, array, volume):
 
 def _npy_volume(p, array, volume):
     """A 3-D ``.npy`` array, memory-mapped; origin 0, spacing 1."""
-    from .io import _check_voxel_dtype, _no_array
+    from . import _check_voxel_dtype, _no_array
 
     _no_array(p, array)
     try:
@@ -402,7 +402,7 @@ class _VoxelAxes:
     """
 
     def __init__(self, p, matrix, offset, what, name, voxel_shape):
-        from .io import _voxel_grid
+        from . import _voxel_grid
 
         m, t = np.asarray(matrix, float), np.asarray(offset, float)
         # io's checks and refusals (oblique, singular, non-finite placement) on a 2^3 stand-in
@@ -444,7 +444,7 @@ class _VoxelAxes:
 def _nifti_volume(p, array, volume):
     """A NIfTI image through nibabel's array proxy: each read fetches the region's voxels
     and applies ``scl_slope``/``scl_inter`` in float64, as ``get_fdata()`` does."""
-    from .io import _stem, open_nifti
+    from . import _stem, open_nifti
 
     # one open stream: a .nii.gz is not re-opened per read
     img, shape, dtype, k, affine = open_nifti(p, array, volume, keep_file_open=True)
@@ -459,7 +459,7 @@ def _nrrd_volume(p, array, volume):
     """A NRRD image: raw encoding memory-mapped (by region); any other encoding loaded whole."""
     import nrrd
 
-    from .io import _check_voxel_dtype, _no_array, _nrrd_axes, _stem, _volume_index, nrrd_placement
+    from . import _check_voxel_dtype, _no_array, _nrrd_axes, _stem, _volume_index, nrrd_placement
 
     _no_array(p, array)
     try:
@@ -533,7 +533,7 @@ def _nrrd_type(header):
 
 def _whole_volume(p, array, volume, why=None):
     """Any grid :func:`trivsel.io.load` reads, loaded whole now (a warning says so)."""
-    from .io import _suffix, load
+    from . import _suffix, load
 
     log.warning("%s is loaded whole (%s); 'trivsel convert' makes a Zarr store that block jobs read by region",
                 p, why or f"{_suffix(p)} files cannot be read by region")
@@ -555,7 +555,7 @@ def _whole_volume(p, array, volume, why=None):
 def _stored_dtype(p, array):
     """The type of a file's samples as stored (the values io.load gives are float64), for
     :func:`convert`; float64 where a format does not say."""
-    from .io import _pick_array, _suffix
+    from . import _pick_array, _suffix
 
     suffix = _suffix(p)
     if suffix in (".nrrd", ".nhdr"):
@@ -563,7 +563,7 @@ def _stored_dtype(p, array):
 
         return _nrrd_type(nrrd.read_header(str(p)))
     if suffix in (".vti", ".vtk"):
-        from .io import _read_vtk_dataset
+        from . import _read_vtk_dataset
 
         _, arrays = _read_vtk_dataset(p)  # a second read: VTK files are the small ones
         return arrays[_pick_array(arrays.keys(), array, p)].dtype
@@ -632,7 +632,7 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
     chunk = _check_chunks(chunks)
     vol = source if isinstance(source, Volume) else open_volume(source, array=array, volume=volume)
     chunk = tuple(min(c, n) for c, n in zip(chunk, vol.shape))
-    from .resources import check_memory
+    from ..resources import check_memory
 
     axis = vol.slab_axis
     slab = list(vol.shape)

@@ -22,8 +22,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .exceptions import InputError
-from .io import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
+from ..exceptions import InputError
+from . import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 

@@ -9,7 +9,7 @@ on its own once its boundary is fixed, one dimension at a time::
              cut points (the segments' end points are kept);
     faces    every face of a cut plane between cut lines is reduced as 2-D data with
              its border fixed by the lines' kept points: greedy insertion with
-             data-dependent flips (:func:`trivsel.faces.reduce_face`);
+             data-dependent flips (:func:`trivsel.blocks.faces.reduce_face`);
     blocks   every block is reduced in 3-D with its six faces' triangles prescribed:
              the first interior point joined to every boundary triangle (section 3),
              then insertion and interior flips only (:func:`trivsel.reduce` with
@@ -22,15 +22,15 @@ in one face or inside one block, and that stage interpolates it within the E_inf
 tolerance, so the merged mesh does too.
 
 Each stage is a function of a :class:`Plan` and a folder (``out``): it reads the
-region of the volume it needs (:func:`trivsel.regions.open_volume`; the whole
+region of the volume it needs (:func:`trivsel.io.regions.open_volume`; the whole
 volume is never loaded), the results of the stages it depends on, and writes one
-file.  The Snakemake workflow of ``trivsel blocks`` (``trivsel/blocks.smk``) runs them
+file.  The Snakemake workflow of ``trivsel blocks`` (``trivsel/blocks/workflow.smk``) runs them
 as jobs: locally with ``-c N`` or on a cluster through an executor.
 
 Point numbering: the stages' files hold global point indices, the C-order index over
 ``(i, j, k)`` of the volume's grid as trivsel reads it; the ``.vtu`` pieces' and the
 merged mesh's ``original_index`` is the input's own point id, as ``trivsel reduce``
-writes it (:meth:`trivsel.regions.Volume.file_ids`).
+writes it (:meth:`trivsel.io.regions.Volume.file_ids`).
 """
 
 from __future__ import annotations
@@ -42,12 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
-from .exceptions import InputError
+from ..exceptions import InputError
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
            "check_tetrahedra", "job_resources"]
 
-#: The volume's source, as :func:`trivsel.regions.open_volume` takes it.
+#: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
 
 
@@ -268,8 +268,8 @@ def reduce_block(volume, plan, block, faces, *, tol_inf, method="greedy", option
     as global point indices, and a dict with ``sse``, ``count`` over the block's
     interior points, ``max`` over all its points, ``n_vertices``, ``seconds``.
     """
-    from . import reduce
-    from .data import grid_from_array
+    from .. import reduce
+    from ..data import grid_from_array
 
     region = plan.block_region(block)
     vals = np.asarray(volume.read(region), float)
@@ -433,7 +433,7 @@ def write_config(out, config):
     ``volume``), ``block`` (grid intervals per block), ``tol_inf``, ``method``.  The
     volume is opened (its header only) for its shape.  Returns the full configuration.
     """
-    from .methods import METHODS, get_method
+    from ..methods import METHODS, get_method
 
     cfg = {k: config.get(k) for k in SOURCE_KEYS}
     tol = config.get("tol_inf")
@@ -463,7 +463,7 @@ def write_config(out, config):
 
 
 def _open(cfg):
-    from .regions import open_volume
+    from ..io.regions import open_volume
 
     return open_volume(cfg.get("input"), function=cfg.get("function"), n=cfg.get("n"), array=cfg.get("array"),
                        volume=cfg.get("volume"))
@@ -568,8 +568,8 @@ def line_in_plane(line, plane):
 def write_block_piece(path, plan, tets, volume):
     """One block's tetrahedra as a .vtu piece: the vertices' coordinates (bit for bit the
     whole grid's), point arrays ``value`` and ``original_index`` (the input's point id,
-    :meth:`trivsel.regions.Volume.file_ids`)."""
-    from .pieces import write_piece
+    :meth:`trivsel.io.regions.Volume.file_ids`)."""
+    from ..io.pieces import write_piece
 
     ids, local = np.unique(tets, return_inverse=True)
     ijk = np.stack(np.unravel_index(ids, plan.shape), axis=1)
@@ -586,7 +586,7 @@ def merge_blocks(out):
     """The merge: ``mesh.pvtu`` over the pieces, the merged ``mesh.vtu`` (global
     numbering; if the configuration asks for it) and ``summary.json`` (E_RMS over all
     points from every stage's squared residuals, E_inf, vertices, tetrahedra)."""
-    from .pieces import merge_pieces, write_pvtu
+    from ..io.pieces import merge_pieces, write_pvtu
 
     cfg, plan = read_config(out)
     out = Path(out)
@@ -617,14 +617,14 @@ def merge_blocks(out):
     return summary
 
 
-SNAKEFILE = Path(__file__).with_name("workflows") / "blocks.smk"
+SNAKEFILE = Path(__file__).with_name("workflow.smk")
 _RUN_LOCK = ".trivsel-blocks.lock"
 
 
 def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False):
     """Write ``out/blocks.json`` (:func:`write_config`) and run the blocked workflow on it.
 
-    Snakemake runs ``trivsel/workflows/blocks.smk`` in ``out``: locally on ``cores``, or
+    Snakemake runs ``trivsel/blocks/workflow.smk`` in ``out``: locally on ``cores``, or
     on a cluster with ``snakemake_args`` such as ``("--executor", "slurm",
     "--workflow-profile", "workflow/profiles/slurm")``.  Run again, it does only the jobs
     whose files are missing or incomplete: a killed run resumes where it stopped (the
@@ -658,7 +658,7 @@ def main(argv=None):
     """``python -m trivsel.blocks KIND OUT [ITEM]``: one job of a blocked run (the workflow's rules)."""
     import sys
 
-    from .exceptions import one_line
+    from ..exceptions import one_line
 
     args = sys.argv[1:] if argv is None else argv
     if len(args) not in (2, 3):
@@ -671,6 +671,3 @@ def main(argv=None):
         return 2
     return 0
 
-
-if __name__ == "__main__":
-    raise SystemExit(main())

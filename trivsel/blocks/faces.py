@@ -33,7 +33,7 @@ import numbers
 import numba
 import numpy as np
 
-from .exceptions import InputError
+from ..exceptions import InputError
 
 __all__ = ["reduce_polyline", "reduce_face", "check_face_mesh", "face_residuals"]
 
