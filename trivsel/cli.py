@@ -196,11 +196,29 @@ def _cmd_reduce(a):
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
                     boundary=boundary, options=options, threads=a.threads, check=check,
                     progress=_progress_line if show else None)
-    out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
+    unmet = _unmet_tolerance(result.snapshots[-1].errors, tol_rms=a.tol_rms, tol_inf=a.tol_inf)
+    extra = {"command": sys.argv}
+    if a.tol_rms is not None or a.tol_inf is not None:
+        extra["tolerance_met"] = unmet is None
+    out = write_outputs(result, a.out, extra=extra, inputs=inputs)
     print(format_rows(result.error_rows()))
+    if unmet is not None:
+        why = " (a prescribed boundary keeps its points' errors)" if boundary is not None else ""
+        print(f"trivsel: warning: the tolerance was not met: {unmet}{why}; "
+              "result.json says tolerance_met: false", file=sys.stderr)
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
           f"in {result.timings['total']:.2f} s", file=sys.stderr)
     return 0
+
+
+def _unmet_tolerance(errors, *, tol_rms=None, tol_inf=None):
+    """``None`` when no tolerance was given or the errors meet one of them (the stopping
+    rule stops at the first met); else the errors against the tolerances, as text."""
+    given = [(name, key, tol) for name, key, tol in (("--tol-rms", "E_rms", tol_rms), ("--tol-inf", "E_inf", tol_inf))
+             if tol is not None]
+    if not given or any(errors[key] <= tol for _, key, tol in given):
+        return None
+    return ", ".join(f"{key} {float(errors[key]):.6g} > {name} {float(tol):g}" for name, key, tol in given)
 
 
 def _read_triangles(path):

@@ -586,6 +586,8 @@ def check_output_dir(out_dir, inputs=()):
     Raises :class:`~trivsel.exceptions.InputError` with one line naming the problem.
     Returns the folder as a resolved :class:`~pathlib.Path`.
     """
+    if not str(out_dir).strip():
+        raise InputError(f"--out {str(out_dir)!r} is empty: name the output folder")
     out = Path(out_dir).expanduser()
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {str(out)!r} is an existing file, not a folder")
