@@ -144,9 +144,10 @@ class Volume:
 
     def __init__(self, *, shape, origin, spacing, name, block, dtype, source, by_region=True, coords=None,
                  file_ids=None, slab_axis=0, meta=None):
+        from .data import check_grid_geometry
+
         self.shape = tuple(int(s) for s in shape)
-        self.origin = np.asarray(origin, float)
-        self.spacing = np.asarray(spacing, float)
+        self.origin, self.spacing = check_grid_geometry(self.shape, origin, spacing)
         self.name = str(name)
         self.source = str(source)
         self.by_region = bool(by_region)
