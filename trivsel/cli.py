@@ -7,7 +7,7 @@ The workflow, the benchmarks and CI depend on these names::
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
     trivsel compile [--method paper] [--part 0|1|2]
     trivsel convert INPUT OUT.zarr [--chunks 64] [--array NAME] [--volume K]
-    trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-- SNAKEMAKE ARGS]
+    trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-n] [--verbose] [-- SNAKEMAKE ARGS]
 
 Bad input gives one line ``trivsel: error: ...`` on stderr, exit status 2 and no
 output files.
@@ -126,7 +126,11 @@ def build_parser():
     b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
     b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
     b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
-    b.add_argument("-n", "--dry-run", action="store_true", help="show the jobs and their resources; run nothing")
+    b.add_argument("-n", "--dry-run", action="store_true",
+                   help="show the jobs and their resources; run nothing and create nothing")
+    b.add_argument("-v", "--verbose", action="store_true",
+                   help="show Snakemake's own log (default: one progress line over the jobs, and a failing "
+                        "job's own message)")
     return parser
 
 
@@ -304,7 +308,25 @@ def _cmd_blocks(a, snakemake_args):
     for key in ("block", "tol_inf"):
         if config.get(key) is None:
             raise InputError(f"give --{key.replace('_', '-')} (or `{key}:` in --config)")
-    return run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run)
+    from .blocks import JobFailed
+
+    try:
+        done = run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run,
+                            verbose=a.verbose, show=sys.stderr.isatty())
+    except JobFailed as exc:
+        print(f"trivsel: error: {exc}", file=sys.stderr)
+        return 1
+    if a.dry_run:
+        return done
+    import json
+    from pathlib import Path
+
+    s = json.loads((Path(a.out) / "summary.json").read_text())
+    # Snakemake counts the target rule `all` among its steps
+    what = f"ran {done - 1} job(s)" if done else "nothing to run: the results are up to date with the input and settings"
+    print(f"trivsel blocks: {what}; {a.out}: {s['vertices']} of {s['points']} points, {s['tetrahedra']} "
+          f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}", file=sys.stderr)
+    return 0
 
 
 def _read_yaml(path):
@@ -336,8 +358,8 @@ def main(argv=None):
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:  # SIGTERM like Ctrl-C: the outputs stay as they were, the temporaries go
         previous = signal.signal(signal.SIGTERM, _terminate)
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        argv = list(sys.argv[1:] if argv is None else argv)
         passed = []  # `trivsel blocks ... -- ARGS`: ARGS go to Snakemake as they are
         if argv[:1] == ["blocks"] and "--" in argv:
             passed = argv[argv.index("--") + 1:]
@@ -357,7 +379,11 @@ def main(argv=None):
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
+        if argv[:1] == ["blocks"]:
+            print("trivsel: interrupted; its jobs were stopped, the finished ones are kept: run it again to "
+                  "resume", file=sys.stderr)
+        else:
+            print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
         return 130
     finally:
         if main_thread:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .exceptions import InputError
-from .io import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
+from .io import TMP_PREFIX, _read_vtk_dataset, _vtk_points, tetra_grid, umask, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -40,10 +40,12 @@ def _atomic_write(path, write, overwrite):
     if not overwrite and (path.exists() or path.is_symlink()):
         raise InputError(f"{str(path)!r} exists; pass overwrite=True to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
+    # the temporary prefix marks it as trivsel's, so that the leftovers of a killed run are removed
+    fd, tmp = tempfile.mkstemp(prefix=f"{TMP_PREFIX}{path.stem}-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~umask())  # mkstemp's 0600 would hide the file from the user's group
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

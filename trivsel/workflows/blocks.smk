@@ -29,9 +29,12 @@ localrules:
     all,
 
 
+RESULTS = ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])
+
+
 rule all:
     input:
-        "summary.json",
+        RESULTS,
     default_target: True
 
 
@@ -113,8 +116,7 @@ rule merge:
         expand("pieces/{block}.npz", block=BLOCKS),
         expand("pieces/{block}.vtu", block=BLOCKS),
     output:
-        "summary.json",
-        "mesh.pvtu",
+        RESULTS,
     log:
         "logs/merge.log",
     benchmark:
