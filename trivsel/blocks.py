@@ -482,6 +482,27 @@ def input_stamp(path):
     return [count, size, latest]
 
 
+#: Bytes of float64 samples :func:`check_exact_values` reads at a time.
+CHECK_READ_BYTES = 64 * 2**20
+
+
+def check_exact_values(vol):
+    """Read a volume of 64-bit integers through once, slab by slab, before any job: one that
+    float64 cannot hold exactly (beyond 2^53) is refused naming it and its grid index
+    (:meth:`trivsel.regions.Volume.read` checks each slab).  Other types (float64 holds every
+    int32 and float32 exactly) are checked by the jobs as they read their regions."""
+    dtype = np.dtype(vol.dtype)
+    if dtype.kind not in "iu" or dtype.itemsize < 8:
+        return
+    axis = vol.slab_axis
+    per_slice = int(np.prod(vol.shape)) // vol.shape[axis]
+    step = max(1, CHECK_READ_BYTES // (8 * per_slice))
+    for start in range(0, vol.shape[axis], step):
+        region = [(0, n) for n in vol.shape]
+        region[axis] = (start, min(vol.shape[axis], start + step))
+        vol.read(tuple(region))
+
+
 def make_config(config):
     """Check a blocked run's configuration and complete it (no file is written).
 
@@ -502,6 +523,7 @@ def make_config(config):
     vol = _open(cfg)
     plan = plan_blocks(vol.shape, config.get("block"))
     check_plan_size(plan, config.get("block"))
+    check_exact_values(vol)
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())
     return {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
@@ -730,7 +752,12 @@ STOP_SECONDS = 30
 
 class JobFailed(Exception):
     """A blocked run that ended without its results: a job failed, or Snakemake did.  The
-    message is one line (the failing job's own message and where its log is)."""
+    message is one line (the failing job's own message and where its log is); ``status``
+    is the exit status for it: 2 when the job refused its input, else 1."""
+
+    def __init__(self, message, status=1):
+        super().__init__(message)
+        self.status = status
 
 
 def check_cores(cores):
@@ -828,22 +855,22 @@ _LOG = re.compile(r"^\s+log: (\S+)")
 
 
 def _job_message(log):
-    """A failed job's own one-line message from its log: its ``trivsel: error:`` line, else
-    the last line (a traceback's exception)."""
+    """A failed job's own one-line message from its log and whether it was bad input: its
+    ``trivsel: error:`` line (True), else the last line (a traceback's exception)."""
     try:
         lines = [x.strip() for x in Path(log).read_text(errors="replace").splitlines() if x.strip()]
     except OSError:
-        return "its log is missing"
+        return "its log is missing", False
     for line in reversed(lines):
         if line.startswith("trivsel: error: "):
-            return line[len("trivsel: error: "):]
-    return lines[-1] if lines else "its log is empty"
+            return line[len("trivsel: error: "):], True
+    return (lines[-1] if lines else "its log is empty"), False
 
 
 def _follow(proc, out, show):
     """Read Snakemake's output: one progress line over the jobs on stderr (``show``: a
     self-overwriting line on a terminal), and what a failure needs.  Returns
-    ``(jobs_done, failure)``: ``failure`` is None or the one-line reason."""
+    ``(jobs_done, failure)``: ``failure`` is None or a :class:`JobFailed`."""
     import collections
     import sys
 
@@ -871,12 +898,13 @@ def _follow(proc, out, show):
         return done, None
     if rule is not None:
         where = f" (its log: {out / log})" if log else ""
-        text = _job_message(out / log) if log else "no log"
+        text, bad_input = _job_message(out / log) if log else ("no log", False)
         item = f" {Path(log).stem}" if log and Path(log).parent.name == rule else ""  # logs/RULE/ITEM.log
-        return done, f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log"
+        return done, JobFailed(f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log",
+                               2 if bad_input else 1)
     errors = [x.strip() for x in tail if "error" in x.lower() and x.strip()]
     last = errors[-1] if errors else next((x.strip() for x in reversed(tail) if x.strip()), "no output")
-    return done, f"Snakemake failed (exit status {proc.returncode}): {last}"
+    return done, JobFailed(f"Snakemake failed (exit status {proc.returncode}): {last}")
 
 
 def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, verbose=False, show=False):
@@ -955,7 +983,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             if verbose:
                 done, failure = 0, None
                 if proc.wait() != 0:
-                    failure = f"Snakemake failed (exit status {proc.returncode}); its log is above"
+                    failure = JobFailed(f"Snakemake failed (exit status {proc.returncode}); its log is above")
             else:
                 done, failure = _follow(proc, out, show)
         except BaseException:
@@ -967,10 +995,10 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             missing = [n for n in ("summary.json", "mesh.pvtu") + (("mesh.vtu",) if full["merged"] else ())
                        if not (out / n).is_file()]
             if missing:
-                failure = (f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
-                           "(its arguments after '--' may have limited the run)")
+                failure = JobFailed(f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
+                                    "(its arguments after '--' may have limited the run)")
         if failure is not None:
-            raise JobFailed(failure)
+            raise failure
         return done
     finally:
         os.close(lock)

@@ -315,7 +315,7 @@ def _cmd_blocks(a, snakemake_args):
                             verbose=a.verbose, show=sys.stderr.isatty())
     except JobFailed as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
-        return 1
+        return exc.status
     if a.dry_run:
         return done
     import json
