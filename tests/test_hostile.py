@@ -187,6 +187,18 @@ def _cases(tmp: Path):
          "float64 cannot hold it exactly"),
         ("blocks: --volume with --function", ["blocks", *BLOCKS_FN, "--volume", "1", "--out", out], 2,
          "--volume applies to input files"),
+        ("blocks: merged 'no' in --config", ["blocks", *BLOCKS_FN, "--config",
+                                             _write(tmp, "m.yaml", _text("merged: 'no'\n")), "--out", out], 2,
+         "merged must be true or false, got 'no'"),
+        ("blocks: method decimate in --config", ["blocks", *BLOCKS_FN, "--config",
+                                                 _write(tmp, "d.yaml", _text("method: decimate\n")), "--out", out], 2,
+         "method 'decimate' cannot take the blocks' prescribed faces: choose greedy or paper"),
+        ("blocks: Snakemake's --touch after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--touch"], 2,
+         "Snakemake's --touch cannot be passed after '--'"),
+        ("blocks: Snakemake's --directory after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--directory",
+                                                      str(tmp)], 2, "Snakemake's --directory cannot be passed"),
+        ("blocks: Snakemake's --cores after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--cores=0"], 2,
+         "use -c before '--'"),
         ("compare: missing table", ["compare", str(tmp / "no.csv"), existing], 2, "does not exist"),
         ("compare: a folder", ["compare", str(tmp), existing], 2, "not a file"),
         ("compare: empty table", ["compare", _write(tmp, "e.csv", _text("")), existing], 2, "cannot read"),
@@ -289,6 +301,19 @@ def test_blocks_rerun_with_another_setting_or_a_changed_input_is_refused(tmp_pat
     assert code == 2
     _one_line(err, f"the input {str(src.resolve())!r} changed since the blocked run in")
     assert _snapshot(out) == before
+
+
+def test_blocks_bad_file_read_whole_is_one_line_in_a_process(tmp_path):
+    """The warning that a file is read whole comes only after its checks: a bad one is one line
+    (in-process runs above do not see log records, which pytest captures)."""
+    import subprocess
+
+    np.savez(tmp_path / "bo.npz", values=np.zeros((5, 5, 5)), origin=np.array([0.0, np.inf, 0.0]))
+    r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", str(tmp_path / "bo.npz"), "--block", "2",
+                        "--tol-inf", "0.1", "--out", str(tmp_path / "o")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 2
+    _one_line(r.stderr, "grid origin must be 3 finite numbers, got (0.0, inf, 0.0)")
+    assert not (tmp_path / "o").exists()
 
 
 def test_blocks_refuses_a_folder_another_run_holds(tmp_path):

@@ -503,6 +503,10 @@ def check_exact_values(vol):
         vol.read(tuple(region))
 
 
+#: The methods of the 3-D stage (they start from prescribed boundary triangles).
+BLOCK_METHODS = ("greedy", "paper")
+
+
 def make_config(config):
     """Check a blocked run's configuration and complete it (no file is written).
 
@@ -520,6 +524,12 @@ def make_config(config):
         raise InputError(f"tol_inf must be a finite number >= 0, got {tol!r}")
     method = config.get("method", "greedy")
     get_method(method)
+    if method not in BLOCK_METHODS:
+        raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose "
+                         f"{' or '.join(BLOCK_METHODS)}")
+    merged = config.get("merged", True)
+    if not isinstance(merged, bool):
+        raise InputError(f"merged must be true or false, got {merged!r}")
     vol = _open(cfg)
     plan = plan_blocks(vol.shape, config.get("block"))
     check_plan_size(plan, config.get("block"))
@@ -527,7 +537,7 @@ def make_config(config):
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())
     return {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
-            "merged": bool(config.get("merged", True)), "plan": plan.to_dict(),
+            "merged": merged, "plan": plan.to_dict(),
             "origin": [float(x) for x in vol.origin], "spacing": [float(x) for x in vol.spacing],
             "input_stamp": None if cfg["input"] is None else input_stamp(cfg["input"])}
 
@@ -773,6 +783,26 @@ def check_cores(cores):
     return n
 
 
+#: Snakemake's options that would move the run out of its folder, run another workflow, mark
+#: results done without computing them, or drop the lock and records a rerun relies on.
+REFUSED_SNAKEMAKE_ARGS = ("--directory", "-d", "--snakefile", "-s", "--touch", "-t", "--nolock", "--unlock",
+                          "--delete-all-output", "--delete-temp-output", "--cleanup-metadata", "--cores", "-c",
+                          "--dry-run", "-n", "--dryrun", "--configfile", "--configfiles", "--config", "-C",
+                          "--ignore-incomplete", "--ii")
+
+
+def check_snakemake_args(snakemake_args):
+    """One-line InputError for a Snakemake argument after ``--`` that would break the output
+    contract (:data:`REFUSED_SNAKEMAKE_ARGS`), naming it and what to use instead."""
+    for a in snakemake_args:
+        name = a.split("=")[0]
+        if name in REFUSED_SNAKEMAKE_ARGS:
+            instead = {"--cores": "-c before '--'", "-c": "-c before '--'", "--dry-run": "-n before '--'",
+                       "-n": "-n before '--'", "--dryrun": "-n before '--'"}.get(name, "")
+            raise InputError(f"Snakemake's {name} cannot be passed after '--': trivsel blocks sets where and "
+                             f"what it runs{'; use ' + instead if instead else ''}")
+
+
 def _runs_locally(snakemake_args):
     """Whether the jobs run on this machine (no executor or profile among Snakemake's arguments)."""
     remote = ("--executor", "-e", "--profile", "--workflow-profile", "--cluster", "--slurm", "--kubernetes")
@@ -943,6 +973,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
         raise InputError("trivsel blocks runs on Snakemake, which is not installed: "
                          "pip install 'trivsel[workflow]'")
     cores = check_cores(cores)
+    check_snakemake_args(snakemake_args)
     source = [config["input"]] if config.get("input") is not None else []
     out = check_output_dir(out, source)
     full = make_config(config)

@@ -55,8 +55,11 @@ def build_parser():
     stop.add_argument("--tol-inf", type=float, help="stop when E_inf <= this")
     r.add_argument("--boundary", metavar="TRIANGLES.npy",
                    help="prescribed boundary of grid data: an (m, 3) integer array of point indices (C order "
-                        "over i, j, k) forming a closed triangulation of the box's surface; its vertices are "
-                        "kept, only interior points are inserted and no flip changes it")
+                        "over i, j, k) forming a closed triangulation of the box's surface, each triangle in "
+                        "one face; its vertices are kept, only interior points are inserted and no flip "
+                        "changes it.  The boundary's other points keep their errors: a --tol-inf or "
+                        "--tol-rms they prevent gives a warning and tolerance_met: false in result.json "
+                        "(exit status 0, the best mesh written)")
     r.add_argument("--out", required=True, help="output folder (errors.csv, mesh_<fraction>.vtu, result.json)")
     r.add_argument("--check", action="store_true", help="run the mesh-validity checker at every snapshot (slow)")
     r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",

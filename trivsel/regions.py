@@ -536,11 +536,12 @@ def _whole_volume(p, array, volume, why=None):
     """Any grid :func:`trivsel.io.load` reads, loaded whole now (a warning says so)."""
     from .io import _suffix, load
 
-    log.warning("%s is loaded whole (%s); 'trivsel convert' makes a Zarr store that block jobs read by region",
-                p, why or f"{_suffix(p)} files cannot be read by region")
     data = load(p, array, volume=volume)
     if not data.is_grid:
         raise InputError(f"{str(p)!r} holds scattered points, not a grid: region reads need a regular grid")
+    # after the reader's checks, so that bad input stays one line
+    log.warning("%s is loaded whole (%s); 'trivsel convert' makes a Zarr store that block jobs read by region",
+                p, why or f"{_suffix(p)} files cannot be read by region")
     values = data.values.reshape(data.shape)
     n = data.shape
     c_index = [n[1] * n[2], n[2], 1]  # the C-order index of the unit steps (1,0,0), (0,1,0), (0,0,1)
