@@ -423,6 +423,25 @@ def test_blocks_success_rerun_and_a_limited_run(tmp_path):
     assert r.returncode == 1
     _one_line(r.stderr, "Snakemake ended without writing summary.json, mesh.pvtu, mesh.vtu")
 
+    # SIGTERM while the merge runs again: the previous results stay as they were
+    import signal
+    import subprocess
+    import time
+
+    results = {n: (out / n).read_bytes() for n in ("summary.json", "mesh.pvtu", "mesh.vtu")}
+    (out / "merged" / "mesh.vtu").unlink()
+    p = subprocess.Popen([sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "8", "--block", "4",
+                          "--tol-inf", "0.05", "--out", str(out), "-c", "2"], stderr=subprocess.PIPE, text=True)
+    deadline = time.time() + 300
+    while time.time() < deadline and not any(b"merge" in Path(f"/proc/{pid}/cmdline").read_bytes()
+                                             for pid in _processes_in(out)):
+        time.sleep(0.02)
+    p.send_signal(signal.SIGTERM)
+    _, err = p.communicate(timeout=120)
+    assert p.returncode == 130, err
+    assert {n: (out / n).read_bytes() for n in results} == results
+    assert not list(out.rglob(TMP_PREFIX + "*")) and _processes_in(out) == []
+
 
 @pytest.mark.slow
 def test_blocks_failing_job_gives_its_own_message(tmp_path):

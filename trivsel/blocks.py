@@ -397,6 +397,7 @@ def job_resources(plan, kind, item=None, *, merged=True):
 #                                 and their error sums
 #   planes/A_I.npz                triangles of each cut plane's faces, and their error sums
 #   pieces/X_Y_Z.npz, .vtu        each block's tetrahedra, and the block as a ParaView piece
+#   merged/                       the merge job's results, linked to the top when complete:
 #   mesh.pvtu, mesh.vtu           the pieces as one partitioned dataset; the merged mesh
 #   summary.json                  E_RMS, E_inf, vertices, tetrahedra, points
 
@@ -553,8 +554,8 @@ def _is_run_config(path):
 
 
 #: The names ``trivsel blocks`` writes at the top of its folder.
-RUN_NAMES = (CONFIG, "kernels.done", "lines", "planes", "pieces", "logs", "benchmarks", "mesh.pvtu", "mesh.vtu",
-             "summary.json", ".snakemake")
+RUN_NAMES = (CONFIG, "kernels.done", "lines", "planes", "pieces", "merged", "logs", "benchmarks", "mesh.pvtu",
+             "mesh.vtu", "summary.json", ".snakemake")
 
 
 def check_run_folder(out, full=None):
@@ -720,7 +721,8 @@ def write_block_piece(path, plan, tets, volume):
 
 
 def merge_blocks(out):
-    """The merge: ``mesh.pvtu`` over the pieces, the merged ``mesh.vtu`` (global
+    """The merge, into ``merged/`` and then linked to the top (:func:`publish_results`):
+    ``mesh.pvtu`` over the pieces, the merged ``mesh.vtu`` (global
     numbering; if the configuration asks for it) and ``summary.json`` (E_RMS over all
     points from every stage's squared residuals, E_inf, vertices, tetrahedra)."""
     from .pieces import merge_pieces, write_pvtu
@@ -742,16 +744,56 @@ def merge_blocks(out):
             n_tets += len(z["tets"])
             verts.append(np.unique(z["tets"]))
     n_vertices = int(len(np.unique(np.concatenate(verts))))
-    write_pvtu(out / "mesh.pvtu", pieces, overwrite=True)
+    staged = out / STAGED
+    write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
     if cfg.get("merged", True):
-        merge_pieces(pieces, out / "mesh.vtu", overwrite=True)
+        merge_pieces(pieces, staged / "mesh.vtu", overwrite=True)
     N = plan.n_points()
     summary = {"points": N, "vertices": n_vertices, "fraction": n_vertices / N, "tetrahedra": n_tets,
                "E_rms": float(np.sqrt(sse / N)), "E_inf": mx, "tol_inf": cfg["tol_inf"],
                "blocks": len(plan.blocks()), "planes": len(plan.planes()), "lines": len(plan.lines()),
                "owned_points": own}
-    _atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
+    _atomic_write_text(staged / "summary.json", json.dumps(summary, indent=1))
+    publish_results(out)
     return summary
+
+
+#: The merge job's own folder: Snakemake deletes a job's outputs before it runs the job again,
+#: so the results a user opens (:data:`RESULTS`, at the top of the run's folder) are hard links
+#: to these, replaced only once a merge is complete (:func:`publish_results`).
+STAGED = "merged"
+RESULTS = ("summary.json", "mesh.pvtu", "mesh.vtu")
+
+
+def publish_results(out):
+    """Link the merge's complete results (``merged/``) to the top of the run's folder, each by
+    an atomic replace, with SIGINT and SIGTERM held until all are in place (a signal then
+    takes effect after), so the folder never shows results of two merges.  A result the
+    configuration does not produce (``mesh.vtu`` with ``merged: false``) is removed."""
+    import signal
+    import threading
+
+    from .io import TMP_PREFIX
+
+    out = Path(out)
+    names = [n for n in RESULTS if (out / STAGED / n).is_file()]
+    held = {signal.SIGINT, signal.SIGTERM}
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        for name in names:
+            if (out / name).exists() and os.path.samefile(out / STAGED / name, out / name):
+                continue  # published already (a rename onto the same file would do nothing)
+            tmp = out / f"{TMP_PREFIX}{name}"
+            tmp.unlink(missing_ok=True)
+            os.link(out / STAGED / name, tmp)
+            os.replace(tmp, out / name)
+        for name in set(RESULTS) - set(names):
+            (out / name).unlink(missing_ok=True)
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
 
 
 SNAKEFILE = Path(__file__).with_name("workflows") / "blocks.smk"
@@ -1008,8 +1050,10 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                                    "errors": "replace"}
         # Snakemake holds the folder's lock too, until it ends: a driver killed outright does
         # not free the folder while its Snakemake stops its jobs
-        proc = subprocess.Popen(command(out, "--rerun-incomplete"), preexec_fn=_start_session, pass_fds=(lock,),
-                                **pipe)
+        # every output is written atomically, so an existing one is complete: --keep-incomplete keeps
+        # the previous results of a job that fails or is stopped (Snakemake would delete them)
+        proc = subprocess.Popen(command(out, "--rerun-incomplete", "--keep-incomplete"), preexec_fn=_start_session,
+                                pass_fds=(lock,), **pipe)
         try:
             if verbose:
                 done, failure = 0, None
@@ -1023,8 +1067,8 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
         finally:
             _remove_run_temporaries(out)
         if failure is None:
-            missing = [n for n in ("summary.json", "mesh.pvtu") + (("mesh.vtu",) if full["merged"] else ())
-                       if not (out / n).is_file()]
+            publish_results(out)  # again: a result deleted at the top since the merge is linked anew
+            missing = [n for n in RESULTS if (n != "mesh.vtu" or full["merged"]) and not (out / n).is_file()]
             if missing:
                 failure = JobFailed(f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
                                     "(its arguments after '--' may have limited the run)")

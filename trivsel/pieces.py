@@ -125,10 +125,10 @@ def _write_text(path, text, overwrite):
     return _atomic_write(path, write, overwrite)
 
 
-def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
+def write_pvtu(path, piece_paths, *, overwrite: bool = False, relative_to=None) -> Path:
     """Write a ``.pvtu`` over ``piece_paths`` (``.vtu`` files, referenced by their paths
-    relative to the ``.pvtu``'s folder): ``pv.read(path)`` gives all pieces' cells as one
-    unstructured grid.
+    relative to the ``.pvtu``'s folder, or to ``relative_to``, the folder it will be moved
+    to): ``pv.read(path)`` gives all pieces' cells as one unstructured grid.
 
     The point arrays and the points' type are declared from the first piece; every piece
     must have the same (as :func:`write_piece` writes them).
@@ -144,7 +144,7 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
     pts = ET.SubElement(grid, "PPoints")
     ET.SubElement(pts, "PDataArray", type=_vtk_type(_vtk_points(first).dtype, "Points"),
                   NumberOfComponents="3")
-    folder = Path(path).parent
+    folder = Path(path).parent if relative_to is None else Path(relative_to)
     for p in paths:
         ET.SubElement(grid, "Piece", Source=_relative(p, folder))
     return _write_text(path, _xml_text(root), overwrite)

@@ -29,7 +29,8 @@ localrules:
     all,
 
 
-RESULTS = ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])
+# the merge job's own copies; the job links them to the top of the folder when they are complete
+RESULTS = [f"merged/{name}" for name in ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])]
 
 
 rule all:
