@@ -417,10 +417,21 @@ def parse_item(name):
 MAX_JOBS = 20000
 
 
-def job_count(plan) -> int:
-    """The jobs of a plan: kernels, the lines of three axes, every plane and block, the merge."""
-    nx, ny, nz = plan.counts
-    return 5 + len(plan.planes()) + nx * ny * nz
+def plan_counts(shape, block):
+    """Blocks per axis of :func:`plan_blocks` ``(shape, block)``, by arithmetic (no cut list is
+    built, so a hostile size costs nothing).  ``block``: an int or 3 ints >= 2."""
+    counts = []
+    for n, b in zip(shape, np.broadcast_to(np.asarray(block, np.int64), (3,)).tolist()):
+        k = -(-(int(n) - 1) // b)  # len(range(0, n - 1, b))
+        cuts = k + 1 - (k + 1 > 2 and (int(n) - 1) - (k - 1) * b < 2)  # a short remainder is joined
+        counts.append(cuts - 1)
+    return tuple(counts)
+
+
+def job_count(counts) -> int:
+    """The jobs of a plan with ``counts`` blocks per axis: kernels, the lines of three axes,
+    every cut plane and block, the merge."""
+    return 5 + sum(c + 1 for c in counts) + int(np.prod(counts, dtype=object))
 
 
 def _smallest_block(shape, most=MAX_JOBS):
@@ -428,21 +439,23 @@ def _smallest_block(shape, most=MAX_JOBS):
     lo, hi = 2, max(2, max(shape) - 1)
     while lo < hi:
         mid = (lo + hi) // 2
-        if job_count(plan_blocks(shape, mid)) <= most:
+        if job_count(plan_counts(shape, mid)) <= most:
             hi = mid
         else:
             lo = mid + 1
     return lo
 
 
-def check_plan_size(plan, block):
-    """One-line InputError when the plan has more than :data:`MAX_JOBS` jobs, naming the
-    count and the smallest block size that has few enough."""
-    n = job_count(plan)
+def check_plan_size(shape, block):
+    """One-line InputError when cutting ``shape`` into blocks of ``block`` makes more than
+    :data:`MAX_JOBS` jobs, naming the count and the smallest block size that has few enough.
+    Call it after :func:`plan_blocks`'s own checks of ``block`` or with a valid one."""
+    counts = plan_counts(shape, block)
+    n = job_count(counts)
     if n > MAX_JOBS:
-        raise InputError(f"block size {block} cuts the grid of {plan.shape} points into {np.prod(plan.counts):,} "
-                         f"blocks ({n:,} jobs), more than the {MAX_JOBS:,} a run plans: use --block "
-                         f"{_smallest_block(plan.shape)} or more")
+        raise InputError(f"block size {block} cuts the grid of {tuple(shape)} points into "
+                         f"{int(np.prod(counts, dtype=object)):,} blocks ({n:,} jobs), more than the {MAX_JOBS:,} "
+                         f"a run plans: use --block {_smallest_block(shape)} or more")
 
 
 def check_job_memory(plan, *, merged=True):
@@ -532,8 +545,9 @@ def make_config(config):
     if not isinstance(merged, bool):
         raise InputError(f"merged must be true or false, got {merged!r}")
     vol = _open(cfg)
+    plan_blocks((3, 3, 3), config.get("block"))  # the block size's own checks, on a grid of one block
+    check_plan_size(vol.shape, config.get("block"))
     plan = plan_blocks(vol.shape, config.get("block"))
-    check_plan_size(plan, config.get("block"))
     check_exact_values(vol)
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())

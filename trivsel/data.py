@@ -149,8 +149,17 @@ def check_grid_geometry(shape, origin, spacing):
         raise InputError(f"grid spacing must be 3 positive finite numbers, got {text(sp)}")
     with np.errstate(over="ignore"):
         for a, n in enumerate(shape):
-            line = o[a] + np.arange(int(n), dtype=float) * sp[a]
-            if not np.all(np.isfinite(line)) or np.any(np.diff(line) <= 0):
+            n = int(n)
+            if n <= 2**20:  # every coordinate of the axis
+                line = o[a] + np.arange(n, dtype=float) * sp[a]
+                ok = np.all(np.isfinite(line)) and np.all(np.diff(line) > 0)
+            else:  # both ends, and a spacing of more than two float steps at the largest coordinate
+                i = np.r_[np.arange(64), np.arange(n - 64, n)].astype(float)
+                line = o[a] + i * sp[a]
+                top = np.max(np.abs(line)) if np.all(np.isfinite(line)) else np.inf
+                ok = np.isfinite(top) and np.all(np.diff(line[:64]) > 0) and np.all(np.diff(line[64:]) > 0) \
+                    and sp[a] > 2 * np.spacing(top)
+            if not ok:
                 raise InputError(f"grid origin {text(o)} and spacing {text(sp)} cannot place {int(n)} distinct "
                                  f"finite points along axis {'xyz'[a]} in float64")
     return o, sp
