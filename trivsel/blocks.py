@@ -1014,8 +1014,9 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
       files and raises again; finished jobs are kept for the next run.
 
     ``verbose`` passes Snakemake's own output through; otherwise ``show`` prints one progress
-    line over the jobs.  Returns the number of jobs reported done (Snakemake's exit status for
-    a dry run); raises :class:`JobFailed` when the run ends without its results.
+    line over the jobs.  Returns the number of Snakemake's steps done (None with ``verbose``;
+    Snakemake's exit status for a dry run); raises :class:`JobFailed` when the run ends without
+    its results.
     """
     import importlib.util
     import shutil
@@ -1064,13 +1065,11 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                                    "errors": "replace"}
         # Snakemake holds the folder's lock too, until it ends: a driver killed outright does
         # not free the folder while its Snakemake stops its jobs
-        # every output is written atomically, so an existing one is complete: --keep-incomplete keeps
-        # the previous results of a job that fails or is stopped (Snakemake would delete them)
-        proc = subprocess.Popen(command(out, "--rerun-incomplete", "--keep-incomplete"), preexec_fn=_start_session,
-                                pass_fds=(lock,), **pipe)
+        proc = subprocess.Popen(command(out, "--rerun-incomplete"), preexec_fn=_start_session, pass_fds=(lock,),
+                                **pipe)
         try:
             if verbose:
-                done, failure = 0, None
+                done, failure = None, None
                 if proc.wait() != 0:
                     failure = JobFailed(f"Snakemake failed (exit status {proc.returncode}); its log is above")
             else:

@@ -324,9 +324,13 @@ def _cmd_blocks(a, snakemake_args):
     import json
     from pathlib import Path
 
-    s = json.loads((Path(a.out) / "summary.json").read_text())
-    # Snakemake counts the target rule `all` among its steps
-    what = f"ran {done - 1} job(s)" if done else "nothing to run: the results are up to date with the input and settings"
+    s = json.loads((Path(a.out).expanduser() / "summary.json").read_text())
+    if done is None:  # --verbose: Snakemake's log tells what ran
+        what = "done"
+    elif done:  # Snakemake counts the target rule `all` among its steps
+        what = f"ran {done - 1} job(s)"
+    else:
+        what = "nothing to run: the results are up to date with the input and settings"
     print(f"trivsel blocks: {what}; {a.out}: {s['vertices']} of {s['points']} points, {s['tetrahedra']} "
           f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}", file=sys.stderr)
     return 0
