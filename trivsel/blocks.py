@@ -508,9 +508,13 @@ def check_exact_values(vol):
     dtype = np.dtype(vol.dtype)
     if dtype.kind not in "iu" or dtype.itemsize < 8:
         return
+    from .resources import check_memory
+
     axis = vol.slab_axis
     per_slice = int(np.prod(vol.shape)) // vol.shape[axis]
     step = max(1, CHECK_READ_BYTES // (8 * per_slice))
+    # a slab as stored and as float64, and the check's temporaries
+    check_memory(24.0 * per_slice * step, f"checking {vol.source!r} in slabs of {step} x {per_slice} values")
     for start in range(0, vol.shape[axis], step):
         region = [(0, n) for n in vol.shape]
         region[axis] = (start, min(vol.shape[axis], start + step))

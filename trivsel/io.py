@@ -49,9 +49,8 @@ import numpy as np
 from .data import PointData, grid_from_array, scattered
 from .exceptions import InputError, one_line
 
-__all__ = ["READERS", "MANIFEST", "TMP_PREFIX", "load", "save_npz", "check_output_dir", "remove_temporaries", "umask", "write_outputs", "snapshot_to_vtk",
-           "snapshot_to_pyvista", "tetra_grid", "write_vtu",
-           "fraction_label"]
+__all__ = ["READERS", "MANIFEST", "TMP_PREFIX", "load", "save_npz", "check_output_dir", "remove_temporaries", "umask",
+           "write_outputs", "snapshot_to_vtk", "snapshot_to_pyvista", "tetra_grid", "write_vtu", "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -632,7 +631,6 @@ def remove_temporaries(folder):
             shutil.rmtree(p, ignore_errors=True)
         else:
             p.unlink(missing_ok=True)
-
 
 
 def _cell(v, float_format=None):
