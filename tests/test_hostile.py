@@ -482,7 +482,8 @@ def test_blocks_signal_stops_every_job(tmp_path, sig):
     _, err = p.communicate(timeout=120)
     assert p.returncode == 130, err
     assert err.strip().splitlines() == [
-        "trivsel: interrupted; its jobs were stopped, the finished ones are kept: run it again to resume"]
+        "trivsel: interrupted; jobs that had started were stopped and finished ones are kept: run it again to "
+        "resume"]
     assert _processes_in(out) == []
     assert not list(out.rglob(TMP_PREFIX + "*"))
     assert not (out / "summary.json").exists()

@@ -387,8 +387,8 @@ def main(argv=None):
         return 2
     except KeyboardInterrupt:
         if argv[:1] == ["blocks"]:
-            print("trivsel: interrupted; its jobs were stopped, the finished ones are kept: run it again to "
-                  "resume", file=sys.stderr)
+            print("trivsel: interrupted; jobs that had started were stopped and finished ones are kept: run it "
+                  "again to resume", file=sys.stderr)
         else:
             print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
         return 130
