@@ -7,7 +7,7 @@ The workflow, the benchmarks and CI depend on these names::
     trivsel compare NEW.csv GOLDEN.csv --rtol 1e-6
     trivsel compile [--method paper] [--part 0|1|2]
     trivsel convert INPUT OUT.zarr [--chunks 64] [--array NAME] [--volume K]
-    trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-- SNAKEMAKE ARGS]
+    trivsel blocks INPUT --block 64 --tol-inf 0.01 --out DIR [-c N] [-n] [--verbose] [-- SNAKEMAKE ARGS]
 
 Bad input gives one line ``trivsel: error: ...`` on stderr, exit status 2 and no
 output files.
@@ -55,8 +55,11 @@ def build_parser():
     stop.add_argument("--tol-inf", type=float, help="stop when E_inf <= this")
     r.add_argument("--boundary", metavar="TRIANGLES.npy",
                    help="prescribed boundary of grid data: an (m, 3) integer array of point indices (C order "
-                        "over i, j, k) forming a closed triangulation of the box's surface; its vertices are "
-                        "kept, only interior points are inserted and no flip changes it")
+                        "over i, j, k) forming a closed triangulation of the box's surface, each triangle in "
+                        "one face; its vertices are kept, only interior points are inserted and no flip "
+                        "changes it.  The boundary's other points keep their errors: a --tol-inf or "
+                        "--tol-rms they prevent gives a warning and tolerance_met: false in result.json "
+                        "(exit status 0, the best mesh written)")
     r.add_argument("--out", required=True, help="output folder (errors.csv, mesh_<fraction>.vtu, result.json)")
     r.add_argument("--check", action="store_true", help="run the mesh-validity checker at every snapshot (slow)")
     r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",
@@ -127,7 +130,11 @@ def build_parser():
     b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
     b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
     b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
-    b.add_argument("-n", "--dry-run", action="store_true", help="show the jobs and their resources; run nothing")
+    b.add_argument("-n", "--dry-run", action="store_true",
+                   help="show the jobs and their resources; run nothing and create nothing")
+    b.add_argument("-v", "--verbose", action="store_true",
+                   help="show Snakemake's own log (default: one progress line over the jobs, and a failing "
+                        "job's own message)")
     return parser
 
 
@@ -202,8 +209,16 @@ def _cmd_reduce(a):
     except MemoryShortage as exc:
         hint = _blocks_hint(a, options.method, exc.available)
         raise InputError(f"{exc}; {hint}" if hint else str(exc)) from None
-    out = write_outputs(result, a.out, extra={"command": sys.argv}, inputs=inputs)
+    unmet = _unmet_tolerance(result.snapshots[-1].errors, tol_rms=a.tol_rms, tol_inf=a.tol_inf)
+    extra = {"command": sys.argv}
+    if a.tol_rms is not None or a.tol_inf is not None:
+        extra["tolerance_met"] = unmet is None
+    out = write_outputs(result, a.out, extra=extra, inputs=inputs)
     print(format_rows(result.error_rows()))
+    if unmet is not None:
+        why = " (a prescribed boundary keeps its points' errors)" if boundary is not None else ""
+        print(f"trivsel: warning: the tolerance was not met: {unmet}{why}; "
+              "result.json says tolerance_met: false", file=sys.stderr)
     print(f"wrote {out}/errors.csv, {len(result.snapshots)} mesh file(s) and result.json "
           f"in {result.timings['total']:.2f} s", file=sys.stderr)
     return 0
@@ -243,6 +258,16 @@ def _blocks_hint(a, chosen, available):
         notes.append(f"they run {' or '.join(able)}")
     return ("in blocks of bounded memory: " + shlex.join(cmd)
             + (f" ({'; '.join(notes)})" if notes else ""))
+
+
+def _unmet_tolerance(errors, *, tol_rms=None, tol_inf=None):
+    """``None`` when no tolerance was given or the errors meet one of them (the stopping
+    rule stops at the first met); else the errors against the tolerances, as text."""
+    given = [(name, key, tol) for name, key, tol in (("--tol-rms", "E_rms", tol_rms), ("--tol-inf", "E_inf", tol_inf))
+             if tol is not None]
+    if not given or any(errors[key] <= tol for _, key, tol in given):
+        return None
+    return ", ".join(f"{key} {float(errors[key]):.6g} > {name} {float(tol):g}" for name, key, tol in given)
 
 
 def _read_triangles(path):
@@ -328,7 +353,29 @@ def _cmd_blocks(a, snakemake_args):
     for key in ("block", "tol_inf"):
         if config.get(key) is None:
             raise InputError(f"give --{key.replace('_', '-')} (or `{key}:` in --config)")
-    return run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run)
+    from .blocks import JobFailed
+
+    try:
+        done = run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run,
+                            verbose=a.verbose, show=sys.stderr.isatty())
+    except JobFailed as exc:
+        print(f"trivsel: error: {exc}", file=sys.stderr)
+        return exc.status
+    if a.dry_run:
+        return done
+    import json
+    from pathlib import Path
+
+    s = json.loads((Path(a.out).expanduser() / "summary.json").read_text())
+    if done is None:  # --verbose: Snakemake's log tells what ran
+        what = "done"
+    elif done:  # Snakemake counts the target rule `all` among its steps
+        what = f"ran {done - 1} job(s)"
+    else:
+        what = "nothing to run: the results are up to date with the input and settings"
+    print(f"trivsel blocks: {what}; {a.out}: {s['vertices']} of {s['points']} points, {s['tetrahedra']} "
+          f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}", file=sys.stderr)
+    return 0
 
 
 def _read_yaml(path):
@@ -360,8 +407,8 @@ def main(argv=None):
     main_thread = threading.current_thread() is threading.main_thread()
     if main_thread:  # SIGTERM like Ctrl-C: the outputs stay as they were, the temporaries go
         previous = signal.signal(signal.SIGTERM, _terminate)
+    argv = list(sys.argv[1:] if argv is None else argv)
     try:
-        argv = list(sys.argv[1:] if argv is None else argv)
         passed = []  # `trivsel blocks ... -- ARGS`: ARGS go to Snakemake as they are
         if argv[:1] == ["blocks"] and "--" in argv:
             passed = argv[argv.index("--") + 1:]
@@ -381,7 +428,11 @@ def main(argv=None):
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
+        if argv[:1] == ["blocks"]:
+            print("trivsel: interrupted; jobs that had started were stopped and finished ones are kept: run it "
+                  "again to resume", file=sys.stderr)
+        else:
+            print("trivsel: interrupted; the output folder is as it was before this run", file=sys.stderr)
         return 130
     finally:
         if main_thread:

@@ -21,7 +21,7 @@ import numpy as np
 from .exceptions import InputError
 from .functions import FUNCTIONS, resolve_function
 
-__all__ = ["PointData", "sample_grid", "grid_from_array", "scattered", "points_values"]
+__all__ = ["PointData", "sample_grid", "grid_from_array", "check_grid_geometry", "scattered", "points_values"]
 
 
 @dataclass
@@ -127,6 +127,44 @@ def _real_array(a, name):
     return arr.astype(float, copy=False)
 
 
+def check_grid_geometry(shape, origin, spacing):
+    """A grid's ``origin`` and ``spacing`` as float64 arrays, checked against its ``shape``:
+    three finite numbers each, the spacing positive, and every grid line's coordinate
+    finite and distinct from its neighbour's (a spacing too small to move the origin, or
+    a far corner beyond float64's range, would place two points at one coordinate).
+
+    Raises :class:`~trivsel.exceptions.InputError` naming the bad value.
+    """
+    def text(v):
+        return "(" + ", ".join(repr(float(x)) for x in np.ravel(v)) + ")"
+
+    try:
+        o = np.asarray(origin, float)
+        sp = np.asarray(spacing, float)
+    except (TypeError, ValueError):
+        raise InputError(f"grid origin and spacing must be 3 numbers each, got {origin!r} and {spacing!r}") from None
+    if o.shape != (3,) or not np.all(np.isfinite(o)):
+        raise InputError(f"grid origin must be 3 finite numbers, got {text(o)}")
+    if sp.shape != (3,) or not np.all(np.isfinite(sp)) or np.any(sp <= 0):
+        raise InputError(f"grid spacing must be 3 positive finite numbers, got {text(sp)}")
+    with np.errstate(over="ignore"):
+        for a, n in enumerate(shape):
+            n = int(n)
+            if n <= 2**20:  # every coordinate of the axis
+                line = o[a] + np.arange(n, dtype=float) * sp[a]
+                ok = np.all(np.isfinite(line)) and np.all(np.diff(line) > 0)
+            else:  # both ends, and a spacing of more than two float steps at the largest coordinate
+                i = np.r_[np.arange(64), np.arange(n - 64, n)].astype(float)
+                line = o[a] + i * sp[a]
+                top = np.max(np.abs(line)) if np.all(np.isfinite(line)) else np.inf
+                ok = np.isfinite(top) and np.all(np.diff(line[:64]) > 0) and np.all(np.diff(line[64:]) > 0) \
+                    and sp[a] > 2 * np.spacing(top)
+            if not ok:
+                raise InputError(f"grid origin {text(o)} and spacing {text(sp)} cannot place {int(n)} distinct "
+                                 f"finite points along axis {'xyz'[a]} in float64")
+    return o, sp
+
+
 def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), name="data"):
     """Wrap a 3-D array of samples (indexed ``[i, j, k]`` = x, y, z) as grid data."""
     v = _real_array(values3d, "values")
@@ -137,13 +175,10 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
     if not np.all(np.isfinite(v)):
         bad = np.argwhere(~np.isfinite(v))[0]
         raise InputError(f"non-finite value {v[tuple(bad)]} at grid index {tuple(int(b) for b in bad)}")
+    origin, spacing = check_grid_geometry(v.shape, origin, spacing)
     from .resources import GRID_BYTES_PER_POINT, check_memory
 
     check_memory(GRID_BYTES_PER_POINT * float(v.size), f"a grid of {v.shape} points")
-    origin = np.asarray(origin, float)
-    spacing = np.asarray(spacing, float)
-    if np.any(spacing <= 0) or not np.all(np.isfinite(spacing)):
-        raise InputError(f"grid spacing must be positive and finite, got {tuple(spacing)}")
     idx = [np.arange(s) for s in v.shape]
     ii, jj, kk = np.meshgrid(*idx, indexing="ij")
     ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1).astype(np.int64)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -412,6 +413,7 @@ def job_resources(plan, kind, item=None, *, merged=True):
 #                                 and their error sums
 #   planes/A_I.npz                triangles of each cut plane's faces, and their error sums
 #   pieces/X_Y_Z.npz, .vtu        each block's tetrahedra, and the block as a ParaView piece
+#   merged/                       the merge job's results, linked to the top when complete:
 #   mesh.pvtu, mesh.vtu           the pieces as one partitioned dataset; the merged mesh
 #   summary.json                  E_RMS, E_inf, vertices, tetrahedra, points
 
@@ -426,12 +428,123 @@ def parse_item(name):
     return tuple(int(s) for s in name.split("_"))
 
 
-def write_config(out, config):
-    """Check a blocked run's configuration, add its plan, and write ``out/blocks.json``.
+#: The most jobs a blocked run plans: beyond it, Snakemake's plan alone (even a dry run)
+#: takes minutes and memory that grow with the job count.  A larger block size has fewer jobs.
+MAX_JOBS = 20000
+
+
+def plan_counts(shape, block):
+    """Blocks per axis of :func:`plan_blocks` ``(shape, block)``, by arithmetic (no cut list is
+    built, so a hostile size costs nothing).  ``block``: an int or 3 ints >= 2."""
+    counts = []
+    for n, b in zip(shape, np.broadcast_to(np.asarray(block, np.int64), (3,)).tolist()):
+        k = -(-(int(n) - 1) // b)  # len(range(0, n - 1, b))
+        cuts = k + 1 - (k + 1 > 2 and (int(n) - 1) - (k - 1) * b < 2)  # a short remainder is joined
+        counts.append(cuts - 1)
+    return tuple(counts)
+
+
+def job_count(counts) -> int:
+    """The jobs of a plan with ``counts`` blocks per axis: kernels, the lines of three axes,
+    every cut plane and block, the merge."""
+    return 5 + sum(c + 1 for c in counts) + int(np.prod(counts, dtype=object))
+
+
+def _smallest_block(shape, most=MAX_JOBS):
+    """The smallest block size (the same along every axis) whose plan has at most ``most`` jobs."""
+    lo, hi = 2, max(2, max(shape) - 1)
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if job_count(plan_counts(shape, mid)) <= most:
+            hi = mid
+        else:
+            lo = mid + 1
+    return lo
+
+
+def check_plan_size(shape, block):
+    """One-line InputError when cutting ``shape`` into blocks of ``block`` makes more than
+    :data:`MAX_JOBS` jobs, naming the count and the smallest block size that has few enough.
+    Call it after :func:`plan_blocks`'s own checks of ``block`` or with a valid one."""
+    counts = plan_counts(shape, block)
+    n = job_count(counts)
+    if n > MAX_JOBS:
+        raise InputError(f"block size {block} cuts the grid of {tuple(shape)} points into "
+                         f"{int(np.prod(counts, dtype=object)):,} blocks ({n:,} jobs), more than the {MAX_JOBS:,} "
+                         f"a run plans: use --block {_smallest_block(shape)} or more")
+
+
+def check_job_memory(plan, *, merged=True):
+    """One-line InputError when one job of the plan needs more memory than this machine has
+    available (a local run: the jobs run here): the largest block (naming a block size
+    that fits) or the merged mesh (naming --no-merged)."""
+    from ..resources import available_bytes
+
+    avail = available_bytes()
+    if avail is None:
+        return
+    biggest = tuple(int(np.argmax(np.diff(c))) for c in plan.cuts)  # the longest block along each axis
+    kinds = [("block", biggest, "a smaller --block")] + [("plane", (a, 0), "a smaller grid") for a in range(3)]
+    kinds.append(("merge", None, "--no-merged (the pieces and mesh.pvtu only)"))
+    for kind, item, fix in kinds:
+        mb = job_resources(plan, kind, item, merged=merged)[0]
+        if kind == "merge" and not merged:
+            continue
+        if mb * 2**20 > avail:
+            what = f"block {item_name(item)}" if kind == "block" else ("the merged mesh" if kind == "merge"
+                                                                        else f"the planes normal to {'xyz'[item[0]]}")
+            raise InputError(f"a job of {what} needs about {mb / 1024:.3g} GiB, more than the "
+                             f"{avail / 2**30:.3g} GiB of memory available: use {fix}")
+
+
+def input_stamp(path):
+    """What tells a changed input: size and modification time (ns) of the file, or of every
+    file in a folder input (a Zarr store: the file count, total size and latest time)."""
+    p = Path(path)
+    if not p.is_dir():
+        st = p.stat()
+        return [int(st.st_size), int(st.st_mtime_ns)]
+    count, size, latest = 0, 0, 0
+    for root, _, files in os.walk(p):
+        for f in files:
+            st = os.stat(os.path.join(root, f))
+            count, size, latest = count + 1, size + st.st_size, max(latest, st.st_mtime_ns)
+    return [count, size, latest]
+
+
+#: Bytes of float64 samples :func:`check_exact_values` reads at a time.
+CHECK_READ_BYTES = 64 * 2**20
+
+
+def check_exact_values(vol):
+    """Read a volume of 64-bit integers through once, slab by slab, before any job: one that
+    float64 cannot hold exactly (beyond 2^53) is refused naming it and its grid index
+    (:meth:`trivsel.io.regions.Volume.read` checks each slab).  Other types (float64 holds every
+    int32 and float32 exactly) are checked by the jobs as they read their regions."""
+    dtype = np.dtype(vol.dtype)
+    if dtype.kind not in "iu" or dtype.itemsize < 8:
+        return
+    from ..resources import check_memory
+
+    axis = vol.slab_axis
+    per_slice = int(np.prod(vol.shape)) // vol.shape[axis]
+    step = max(1, CHECK_READ_BYTES // (8 * per_slice))
+    # a slab as stored and as float64, and the check's temporaries
+    check_memory(24.0 * per_slice * step, f"checking {vol.source!r} in slabs of {step} x {per_slice} values")
+    for start in range(0, vol.shape[axis], step):
+        region = [(0, n) for n in vol.shape]
+        region[axis] = (start, min(vol.shape[axis], start + step))
+        vol.read(tuple(region))
+
+
+def make_config(config):
+    """Check a blocked run's configuration and complete it (no file is written).
 
     ``config``: the source (``input`` path, or ``function`` and ``n``; ``array``,
-    ``volume``), ``block`` (grid intervals per block), ``tol_inf``, ``method``.  The
-    volume is opened (its header only) for its shape.  Returns the full configuration.
+    ``volume``), ``block`` (grid intervals per block), ``tol_inf``, ``method``, ``merged``.
+    The volume is opened (its header only) for its shape and geometry; the plan's job count
+    is checked (:func:`check_plan_size`).  Returns the full configuration, with the plan
+    and the input's :func:`input_stamp`.
     """
     from ..methods import METHODS, get_method
 
@@ -440,25 +553,83 @@ def write_config(out, config):
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
         raise InputError(f"tol_inf must be a finite number >= 0, got {tol!r}")
     method = config.get("method", "greedy")
-    if not get_method(method).PRESCRIBED_BOUNDARY:
+    if not get_method(method).PRESCRIBED_BOUNDARY:  # the 3-D stage starts from prescribed triangles
         able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
-        raise InputError(f"method {method!r} cannot reduce a block with prescribed faces; "
-                         f"trivsel blocks runs {' or '.join(able)}")
+        raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose "
+                         f"{' or '.join(able)}")
+    merged = config.get("merged", True)
+    if not isinstance(merged, bool):
+        raise InputError(f"merged must be true or false, got {merged!r}")
     vol = _open(cfg)
+    plan_blocks((3, 3, 3), config.get("block"))  # the block size's own checks, on a grid of one block
+    check_plan_size(vol.shape, config.get("block"))
     plan = plan_blocks(vol.shape, config.get("block"))
+    check_exact_values(vol)
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())
-    full = {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
-            "merged": bool(config.get("merged", True)), "plan": plan.to_dict(),
-            "origin": [float(x) for x in vol.origin], "spacing": [float(x) for x in vol.spacing]}
+    return {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
+            "merged": merged, "plan": plan.to_dict(),
+            "origin": [float(x) for x in vol.origin], "spacing": [float(x) for x in vol.spacing],
+            "input_stamp": None if cfg["input"] is None else input_stamp(cfg["input"])}
+
+
+def _is_run_config(path):
+    """Whether ``path`` is a blocks.json that ``trivsel blocks`` wrote."""
+    try:
+        d = json.loads(Path(path).read_text())
+        Plan.from_dict(d["plan"])
+        return isinstance(d, dict) and {"tol_inf", "method", "block"} <= set(d)
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return False
+
+
+#: The names ``trivsel blocks`` writes at the top of its folder.
+RUN_NAMES = (CONFIG, "kernels.done", "lines", "planes", "pieces", "merged", "logs", "benchmarks", "mesh.pvtu",
+             "mesh.vtu", "summary.json", ".snakemake")
+
+
+def check_run_folder(out, full=None):
+    """Refuse a folder where this run would overwrite what it did not write.
+
+    A folder without a ``blocks.json`` of an earlier blocked run must not hold any of the
+    names a run writes (:data:`RUN_NAMES`); one with it must hold the same configuration
+    ``full`` (:func:`make_config`): other settings, or an input changed since, are refused
+    naming the difference (a rerun never reports the old results as the new ones).
+    """
     out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     path = out / CONFIG
-    new = json.dumps(full, indent=1)
-    if path.exists() and path.read_text() != new:
-        raise InputError(f"{out} holds a blocked run with another configuration ({path}); "
-                         f"choose a new folder or remove it")
-    _atomic_write_text(path, new)
+    if not out.is_dir():
+        return
+    if not (path.exists() or path.is_symlink()):
+        for name in RUN_NAMES:
+            if (out / name).exists() or (out / name).is_symlink():
+                raise InputError(f"{str(out / name)!r} was not written by trivsel blocks (the folder has no "
+                                 f"{CONFIG} of a blocked run): choose another --out; trivsel never overwrites it")
+        return
+    if not _is_run_config(path) or path.is_symlink():
+        raise InputError(f"{str(path)!r} is not the configuration of a trivsel blocks run: choose another --out; "
+                         "trivsel never overwrites it")
+    if full is None:
+        return
+    old = json.loads(path.read_text())
+    for key in full:
+        if old.get(key) != json.loads(json.dumps(full[key])):
+            if key == "input_stamp" and old.get("input") == full["input"]:
+                raise InputError(f"the input {full['input']!r} changed since the blocked run in {str(out)!r} "
+                                 "(its size or modification time): choose a new folder or remove it")
+            raise InputError(f"{str(out)!r} holds a blocked run with another configuration ({key}: "
+                             f"{json.dumps(old.get(key))[:60]} there, {json.dumps(full[key])[:60]} now): "
+                             "choose a new folder or remove it")
+
+
+def write_config(out, config):
+    """Check a blocked run's configuration (:func:`make_config`), check the folder
+    (:func:`check_run_folder`) and write ``out/blocks.json``.  Returns the full configuration."""
+    full = make_config(config)
+    out = Path(out)
+    check_run_folder(out, full)
+    out.mkdir(parents=True, exist_ok=True)
+    _atomic_write_text(out / CONFIG, json.dumps(full, indent=1))
     return full
 
 
@@ -476,18 +647,15 @@ def read_config(out):
 
 
 def _atomic_write_text(path, text):
-    tmp = Path(str(path) + ".tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
+    from ..io.pieces import _atomic_write
+
+    _atomic_write(path, lambda tmp: Path(tmp).write_text(text), overwrite=True)
 
 
 def _atomic_savez(path, **arrays):
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as fh:
-        np.savez(fh, **arrays)
-    os.replace(tmp, path)
+    from ..io.pieces import _atomic_write
+
+    _atomic_write(path, lambda tmp: np.savez(tmp, **arrays), overwrite=True)
 
 
 def _stats(d):
@@ -583,7 +751,8 @@ def write_block_piece(path, plan, tets, volume):
 
 
 def merge_blocks(out):
-    """The merge: ``mesh.pvtu`` over the pieces, the merged ``mesh.vtu`` (global
+    """The merge, into ``merged/`` and then linked to the top (:func:`publish_results`):
+    ``mesh.pvtu`` over the pieces, the merged ``mesh.vtu`` (global
     numbering; if the configuration asks for it) and ``summary.json`` (E_RMS over all
     points from every stage's squared residuals, E_inf, vertices, tetrahedra)."""
     from ..io.pieces import merge_pieces, write_pvtu
@@ -605,57 +774,343 @@ def merge_blocks(out):
             n_tets += len(z["tets"])
             verts.append(np.unique(z["tets"]))
     n_vertices = int(len(np.unique(np.concatenate(verts))))
-    write_pvtu(out / "mesh.pvtu", pieces, overwrite=True)
+    staged = out / STAGED
+    write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
     if cfg.get("merged", True):
-        merge_pieces(pieces, out / "mesh.vtu", overwrite=True)
+        merge_pieces(pieces, staged / "mesh.vtu", overwrite=True)
     N = plan.n_points()
     summary = {"points": N, "vertices": n_vertices, "fraction": n_vertices / N, "tetrahedra": n_tets,
                "E_rms": float(np.sqrt(sse / N)), "E_inf": mx, "tol_inf": cfg["tol_inf"],
                "blocks": len(plan.blocks()), "planes": len(plan.planes()), "lines": len(plan.lines()),
                "owned_points": own}
-    _atomic_write_text(out / "summary.json", json.dumps(summary, indent=1))
+    _atomic_write_text(staged / "summary.json", json.dumps(summary, indent=1))
+    publish_results(out)
     return summary
 
 
+#: The merge job's own folder: Snakemake deletes a job's outputs before it runs the job again,
+#: so the results a user opens (:data:`RESULTS`, at the top of the run's folder) are hard links
+#: to these, replaced only once a merge is complete (:func:`publish_results`).
+STAGED = "merged"
+RESULTS = ("summary.json", "mesh.pvtu", "mesh.vtu")
+
+
+def publish_results(out):
+    """Link the merge's complete results (``merged/``) to the top of the run's folder, each by
+    an atomic replace, with SIGINT and SIGTERM held until all are in place (a signal then
+    takes effect after), so the folder never shows results of two merges.  A result the
+    configuration does not produce (``mesh.vtu`` with ``merged: false``) is removed."""
+    import signal
+    import threading
+
+    from ..io import TMP_PREFIX
+
+    out = Path(out)
+    names = [n for n in RESULTS if (out / STAGED / n).is_file()]
+    held = {signal.SIGINT, signal.SIGTERM}
+    main = threading.current_thread() is threading.main_thread()
+    if main:
+        signal.pthread_sigmask(signal.SIG_BLOCK, held)
+    try:
+        for name in names:
+            if (out / name).exists() and os.path.samefile(out / STAGED / name, out / name):
+                continue  # published already (a rename onto the same file would do nothing)
+            tmp = out / f"{TMP_PREFIX}{name}"
+            tmp.unlink(missing_ok=True)
+            os.link(out / STAGED / name, tmp)
+            os.replace(tmp, out / name)
+        for name in set(RESULTS) - set(names):
+            (out / name).unlink(missing_ok=True)
+    finally:
+        if main:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, held)
+
+
 SNAKEFILE = Path(__file__).with_name("workflow.smk")
-_RUN_LOCK = ".trivsel-blocks.lock"
+#: Seconds the stopped jobs of an interrupted run get to remove their temporary files
+#: before they are killed.
+STOP_SECONDS = 30
 
 
-def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False):
-    """Write ``out/blocks.json`` (:func:`write_config`) and run the blocked workflow on it.
+class JobFailed(Exception):
+    """A blocked run that ended without its results: a job failed, or Snakemake did.  The
+    message is one line (the failing job's own message and where its log is); ``status``
+    is the exit status for it: 2 when the job refused its input, else 1."""
 
-    Snakemake runs ``trivsel/blocks/workflow.smk`` in ``out``: locally on ``cores``, or
-    on a cluster with ``snakemake_args`` such as ``("--executor", "slurm",
-    "--workflow-profile", "workflow/profiles/slurm")``.  Run again, it does only the jobs
-    whose files are missing or incomplete: a killed run resumes where it stopped (the
-    lock a killed run leaves is removed first when no other ``trivsel blocks`` holds the
-    folder).  Returns Snakemake's exit status.
-    """
+    def __init__(self, message, status=1):
+        super().__init__(message)
+        self.status = status
+
+
+def check_cores(cores):
+    """``cores`` as Snakemake takes it: ``"all"`` or an integer >= 1 (``0`` would wait for ever)."""
+    if str(cores) == "all":
+        return "all"
+    try:
+        n = int(str(cores))
+    except ValueError:
+        n = 0
+    if n < 1:
+        raise InputError(f"cores (-c) must be 'all' or an integer >= 1, got {cores!r}")
+    return n
+
+
+#: Snakemake's options that would move the run out of its folder, run another workflow, mark
+#: results done without computing them, or drop the lock and records a rerun relies on.
+REFUSED_SNAKEMAKE_ARGS = ("--directory", "-d", "--snakefile", "-s", "--touch", "-t", "--nolock", "--unlock",
+                          "--delete-all-output", "--delete-temp-output", "--cleanup-metadata", "--cores", "-c",
+                          "--dry-run", "-n", "--dryrun", "--configfile", "--configfiles", "--config", "-C",
+                          "--ignore-incomplete", "--ii")
+
+
+def check_snakemake_args(snakemake_args):
+    """One-line InputError for a Snakemake argument after ``--`` that would break the output
+    contract (:data:`REFUSED_SNAKEMAKE_ARGS`), naming it and what to use instead."""
+    for a in snakemake_args:
+        name = a.split("=")[0]
+        if name in REFUSED_SNAKEMAKE_ARGS:
+            instead = {"--cores": "-c before '--'", "-c": "-c before '--'", "--dry-run": "-n before '--'",
+                       "-n": "-n before '--'", "--dryrun": "-n before '--'"}.get(name, "")
+            raise InputError(f"Snakemake's {name} cannot be passed after '--': trivsel blocks sets where and "
+                             f"what it runs{'; use ' + instead if instead else ''}")
+
+
+def _runs_locally(snakemake_args):
+    """Whether the jobs run on this machine (no executor or profile among Snakemake's arguments)."""
+    remote = ("--executor", "-e", "--profile", "--workflow-profile", "--cluster", "--slurm", "--kubernetes")
+    return not any(a.split("=")[0] in remote for a in snakemake_args)
+
+
+def _lock_folder(out):
+    """An open descriptor of the folder ``out`` holding its exclusive lock (``flock``): the lock
+    ends when every process holding the descriptor has closed it or ended, so none is left
+    behind in the folder.  Another run that holds it is refused with one line."""
     import fcntl
+
+    fd = os.open(out, os.O_RDONLY)
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError:
+        os.close(fd)
+        raise InputError(f"another trivsel blocks run is working in {str(out)!r}: wait for it to end") from None
+    return fd
+
+
+def _start_session():
+    """In Snakemake's process, before it starts: a session (and process group) of its own, which
+    takes its jobs too, so that stopping the run stops every one of them; and SIGTERM when the
+    ``trivsel blocks`` process that started it dies, however it dies (Linux)."""
+    import ctypes
+    import signal
+
+    os.setsid()
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        pass
+
+
+def _stop_group(proc):
+    """Stop Snakemake and its jobs (its process group): SIGTERM, which the jobs answer by
+    removing their temporary files, then SIGKILL for what still runs after
+    :data:`STOP_SECONDS`.  Further SIGINT and SIGTERM wait meanwhile."""
+    import signal
+    import threading
+    import time
+
+    main = threading.current_thread() is threading.main_thread()
+    saved = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        for sig, wait in ((signal.SIGTERM, STOP_SECONDS), (signal.SIGKILL, 10)):
+            try:
+                os.killpg(proc.pid, sig)
+            except ProcessLookupError:
+                break
+            deadline = time.monotonic() + wait
+            while time.monotonic() < deadline:
+                proc.poll()  # reaps Snakemake: a zombie would keep the group alive
+                try:
+                    os.killpg(proc.pid, 0)
+                except ProcessLookupError:
+                    break
+                time.sleep(0.05)
+            else:
+                continue
+            break
+        proc.wait()
+    finally:
+        for sig, handler in saved.items():
+            signal.signal(sig, handler)
+
+
+def _remove_run_temporaries(out):
+    from ..io import remove_temporaries
+
+    for folder in (out, out / "lines", out / "planes", out / "pieces"):
+        if folder.is_dir():
+            remove_temporaries(folder)
+
+
+_STEPS = re.compile(r"^(\d+) of (\d+) steps \(\d+%\) done")
+_ERROR_RULE = re.compile(r"^Error in rule (\w+):")
+_LOG = re.compile(r"^\s+log: (\S+)")
+
+
+def _job_message(log):
+    """A failed job's own one-line message from its log and whether it was bad input: its
+    ``trivsel: error:`` line (True), else the last line (a traceback's exception)."""
+    try:
+        lines = [x.strip() for x in Path(log).read_text(errors="replace").splitlines() if x.strip()]
+    except OSError:
+        return "its log is missing", False
+    for line in reversed(lines):
+        if line.startswith("trivsel: error: "):
+            return line[len("trivsel: error: "):], True
+    return (lines[-1] if lines else "its log is empty"), False
+
+
+def _follow(proc, out, show):
+    """Read Snakemake's output: one progress line over the jobs on stderr (``show``: a
+    self-overwriting line on a terminal), and what a failure needs.  Returns
+    ``(jobs_done, failure)``: ``failure`` is None or a :class:`JobFailed`."""
+    import collections
+    import sys
+
+    tail = collections.deque(maxlen=50)
+    done = 0
+    rule = log = None
+    for line in proc.stdout:
+        line = line.rstrip("\n")
+        tail.append(line)
+        m = _STEPS.match(line)
+        if m:
+            done, total = int(m.group(1)), int(m.group(2))
+            if show:
+                width = 24
+                bar = "#" * (width * done // max(total, 1))
+                sys.stderr.write(f"\rtrivsel blocks [{bar:<{width}}] {done}/{total} jobs")
+                sys.stderr.flush()
+        elif _ERROR_RULE.match(line) and rule is None:
+            rule = _ERROR_RULE.match(line).group(1)
+        elif rule is not None and log is None and _LOG.match(line):
+            log = _LOG.match(line).group(1)
+    if show and done:
+        sys.stderr.write("\n")
+    if proc.wait() == 0:
+        return done, None
+    if rule is not None:
+        where = f" (its log: {out / log})" if log else ""
+        text, bad_input = _job_message(out / log) if log else ("no log", False)
+        item = f" {Path(log).stem}" if log and Path(log).parent.name == rule else ""  # logs/RULE/ITEM.log
+        return done, JobFailed(f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log",
+                               2 if bad_input else 1)
+    errors = [x.strip() for x in tail if "error" in x.lower() and x.strip()]
+    last = errors[-1] if errors else next((x.strip() for x in reversed(tail) if x.strip()), "no output")
+    return done, JobFailed(f"Snakemake failed (exit status {proc.returncode}): {last}")
+
+
+def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, verbose=False, show=False):
+    """Run the blocked workflow in the folder ``out`` (:data:`SNAKEFILE`), keeping the output
+    contract of ``trivsel reduce``.
+
+    Snakemake runs ``trivsel/blocks/workflow.smk`` in ``out``: locally on ``cores``, or on a
+    cluster with ``snakemake_args`` such as ``("--executor", "slurm", "--workflow-profile",
+    "workflow/profiles/slurm")``.  Run again, it does only the jobs whose files are missing
+    or incomplete: a killed run resumes where it stopped.
+
+    * ``out`` and the configuration are checked before any work (:func:`trivsel.io.check_output_dir`,
+      :func:`make_config`): an input inside it, or it inside an input, is refused; so are
+      files that no blocked run wrote (:func:`check_run_folder`), another configuration, an
+      input changed since the run there, a plan of more than :data:`MAX_JOBS` jobs, and
+      (local runs) a job larger than the memory available;
+    * one run at a time holds the folder (a lock on the folder itself, gone with the run);
+    * ``dry_run`` shows the jobs and creates nothing (a new folder is planned in a temporary one);
+    * an interruption (KeyboardInterrupt, which the CLI raises on SIGTERM too) stops
+      Snakemake and every job it started (their process group), removes their temporary
+      files and raises again; finished jobs are kept for the next run.
+
+    ``verbose`` passes Snakemake's own output through; otherwise ``show`` prints one progress
+    line over the jobs.  Returns the number of Snakemake's steps done (None with ``verbose``;
+    Snakemake's exit status for a dry run); raises :class:`JobFailed` when the run ends without
+    its results.
+    """
     import importlib.util
+    import shutil
     import subprocess
     import sys
+    import tempfile
+
+    from ..io import check_output_dir
 
     if importlib.util.find_spec("snakemake") is None:
         raise InputError("trivsel blocks runs on Snakemake, which is not installed: "
                          "pip install 'trivsel[workflow]'")
-    write_config(out, config)
-    out = Path(out).resolve()
-    base = [sys.executable, "-m", "snakemake", "--snakefile", str(SNAKEFILE), "--directory", str(out)]
-    with open(out / _RUN_LOCK, "w") as lock:
+    cores = check_cores(cores)
+    check_snakemake_args(snakemake_args)
+    source = [config["input"]] if config.get("input") is not None else []
+    out = check_output_dir(out, source)
+    full = make_config(config)
+    if _runs_locally(snakemake_args):
+        check_job_memory(Plan.from_dict(full["plan"]), merged=full["merged"])
+    check_run_folder(out, full)
+
+    def command(folder, *extra):
+        return [sys.executable, "-m", "snakemake", "--snakefile", str(SNAKEFILE), "--directory", str(folder),
+                "--cores", str(cores), *extra, *snakemake_args]
+
+    if dry_run:  # in the folder of an earlier run of this configuration, else in a temporary one
+        plan_in = out if (out / CONFIG).exists() else Path(tempfile.mkdtemp(prefix="trivsel-blocks-plan-"))
         try:
-            fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-        except OSError:
-            raise InputError(f"another trivsel blocks run is working in {out}") from None
-        if any((out / ".snakemake" / "locks").glob("*")):  # left by a killed run
-            subprocess.run(base + ["--unlock"], capture_output=True, check=False)
-        cmd = base + ["--cores", str(cores), "--rerun-incomplete", *(["--dry-run"] if dry_run else []),
-                      *snakemake_args]
-        return subprocess.run(cmd, check=False).returncode
+            if plan_in != out:
+                _atomic_write_text(plan_in / CONFIG, json.dumps(full, indent=1))
+            return subprocess.run(command(plan_in, "--dry-run"), check=False).returncode
+        finally:
+            if plan_in != out:
+                shutil.rmtree(plan_in, ignore_errors=True)
+
+    out.mkdir(parents=True, exist_ok=True)
+    lock = _lock_folder(out)
+    try:
+        check_run_folder(out, full)  # again, now that no other run can change it
+        if not (out / CONFIG).exists():
+            _atomic_write_text(out / CONFIG, json.dumps(full, indent=1))
+        _remove_run_temporaries(out)
+        if any((out / ".snakemake" / "locks").glob("*")):  # left by a killed run; no run holds the folder
+            subprocess.run(command(out, "--unlock"), capture_output=True, check=False)
+        pipe = {} if verbose else {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True,
+                                   "errors": "replace"}
+        # Snakemake holds the folder's lock too, until it ends: a driver killed outright does
+        # not free the folder while its Snakemake stops its jobs
+        proc = subprocess.Popen(command(out, "--rerun-incomplete"), preexec_fn=_start_session, pass_fds=(lock,),
+                                **pipe)
+        try:
+            if verbose:
+                done, failure = None, None
+                if proc.wait() != 0:
+                    failure = JobFailed(f"Snakemake failed (exit status {proc.returncode}); its log is above")
+            else:
+                done, failure = _follow(proc, out, show)
+        except BaseException:
+            _stop_group(proc)
+            raise
+        finally:
+            _remove_run_temporaries(out)
+        if failure is None:
+            publish_results(out)  # again: a result deleted at the top since the merge is linked anew
+            missing = [n for n in RESULTS if (n != "mesh.vtu" or full["merged"]) and not (out / n).is_file()]
+            if missing:
+                failure = JobFailed(f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
+                                    "(its arguments after '--' may have limited the run)")
+        if failure is not None:
+            raise failure
+        return done
+    finally:
+        os.close(lock)
 
 
 def main(argv=None):
     """``python -m trivsel.blocks KIND OUT [ITEM]``: one job of a blocked run (the workflow's rules)."""
+    import signal
     import sys
 
     from ..exceptions import one_line
@@ -664,10 +1119,19 @@ def main(argv=None):
     if len(args) not in (2, 3):
         print("usage: python -m trivsel.blocks {kernels,lines,plane,block,merge} OUT [ITEM]", file=sys.stderr)
         return 2
+    def stop(signum, frame):
+        raise KeyboardInterrupt
+
+    # stopped with its run (SIGTERM to the process group): the atomic writers remove their
+    # temporary files on the way out
+    signal.signal(signal.SIGTERM, stop)
     try:
         run_job(args[1], args[0], args[2] if len(args) == 3 else "")
     except InputError as exc:
         print(f"trivsel: error: {one_line(exc)}", file=sys.stderr)
         return 2
+    except KeyboardInterrupt:
+        print("trivsel: error: stopped by a signal", file=sys.stderr)
+        return 130
     return 0
 

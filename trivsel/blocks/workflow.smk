@@ -29,9 +29,13 @@ localrules:
     all,
 
 
+# the merge job's own copies; the job links them to the top of the folder when they are complete
+RESULTS = [f"merged/{name}" for name in ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])]
+
+
 rule all:
     input:
-        "summary.json",
+        RESULTS,
     default_target: True
 
 
@@ -113,8 +117,7 @@ rule merge:
         expand("pieces/{block}.npz", block=BLOCKS),
         expand("pieces/{block}.vtu", block=BLOCKS),
     output:
-        "summary.json",
-        "mesh.pvtu",
+        RESULTS,
     log:
         "logs/merge.log",
     benchmark:

@@ -55,9 +55,9 @@ import numpy as np
 from ..data import PointData, grid_from_array, scattered
 from ..exceptions import InputError, one_line
 
-__all__ = ["READERS", "MANIFEST", "load", "from_object", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
-           "snapshot_to_pyvista", "tetra_grid", "write_vtu",
-           "fraction_label"]
+__all__ = ["READERS", "MANIFEST", "TMP_PREFIX", "load", "from_object", "save_npz", "check_output_dir",
+           "remove_temporaries", "umask", "write_outputs", "snapshot_to_vtk", "snapshot_to_pyvista", "tetra_grid",
+           "write_vtu", "fraction_label"]
 
 
 def fraction_label(fraction: float) -> str:
@@ -697,7 +697,23 @@ def _jsonable(obj):
 
 #: The file in an output folder that lists what trivsel wrote there (and may replace).
 MANIFEST = ".trivsel-manifest.json"
-_TMP_PREFIX = ".trivsel-tmp-"
+#: The name prefix of every temporary file or folder trivsel makes beside its outputs: what a
+#: killed run leaves with it is removed by the next run (:func:`remove_temporaries`).
+TMP_PREFIX = ".trivsel-tmp-"
+
+
+def umask() -> int:
+    """The process's file mode creation mask (read without changing it where Linux tells)."""
+    try:
+        with open("/proc/self/status") as fh:
+            for line in fh:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def check_output_dir(out_dir, inputs=()):
@@ -707,6 +723,8 @@ def check_output_dir(out_dir, inputs=()):
     Raises :class:`~trivsel.exceptions.InputError` with one line naming the problem.
     Returns the folder as a resolved :class:`~pathlib.Path`.
     """
+    if not str(out_dir).strip():
+        raise InputError(f"--out {str(out_dir)!r} is empty: name the output folder")
     out = Path(out_dir).expanduser()
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {str(out)!r} is an existing file, not a folder")
@@ -716,7 +734,7 @@ def check_output_dir(out_dir, inputs=()):
         if ip == resolved or resolved in ip.parents:
             raise InputError(f"input file {str(inp)!r} is inside the output folder {str(out)!r}: "
                              "choose another --out (trivsel never writes over its input)")
-        if ip.is_dir() and ip in resolved.parents:  # a Zarr store is a folder
+        if ip in resolved.parents:  # a folder input, such as a Zarr store
             raise InputError(f"the output folder {str(out)!r} is inside the input {str(inp)!r}: "
                              "choose another --out (trivsel never writes into its input)")
     probe = resolved
@@ -727,11 +745,14 @@ def check_output_dir(out_dir, inputs=()):
     return resolved
 
 
-def _remove_stale_temporaries(out):
-    """Temporary folders of an earlier run that was killed while writing."""
-    for p in out.glob(_TMP_PREFIX + "*"):
-        if p.is_dir():
+def remove_temporaries(folder):
+    """Remove the temporary files and folders (:data:`TMP_PREFIX`) in ``folder`` that a run
+    killed while writing left there."""
+    for p in Path(folder).glob(TMP_PREFIX + "*"):
+        if p.is_dir() and not p.is_symlink():
             shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
 
 
 def _cell(v, float_format=None):
@@ -795,8 +816,8 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
     """
     out = check_output_dir(out_dir, inputs)
     out.mkdir(parents=True, exist_ok=True)
-    _remove_stale_temporaries(out)
-    tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=out))
+    remove_temporaries(out)
+    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=out))
     try:
         names = ["errors.csv"]
         write_csv_rows(result.error_rows(), tmp / "errors.csv")

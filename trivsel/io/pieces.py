@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import InputError
-from . import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
+from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, tetra_grid, umask, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -40,10 +40,12 @@ def _atomic_write(path, write, overwrite):
     if not overwrite and (path.exists() or path.is_symlink()):
         raise InputError(f"{str(path)!r} exists; pass overwrite=True to replace it")
     path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
+    # the temporary prefix marks it as trivsel's, so that the leftovers of a killed run are removed
+    fd, tmp = tempfile.mkstemp(prefix=f"{TMP_PREFIX}{path.stem}-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
         write(tmp)
+        os.chmod(tmp, 0o666 & ~umask())  # mkstemp's 0600 would hide the file from the user's group
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -123,10 +125,10 @@ def _write_text(path, text, overwrite):
     return _atomic_write(path, write, overwrite)
 
 
-def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
+def write_pvtu(path, piece_paths, *, overwrite: bool = False, relative_to=None) -> Path:
     """Write a ``.pvtu`` over ``piece_paths`` (``.vtu`` files, referenced by their paths
-    relative to the ``.pvtu``'s folder): ``pv.read(path)`` gives all pieces' cells as one
-    unstructured grid.
+    relative to the ``.pvtu``'s folder, or to ``relative_to``, the folder it will be moved
+    to): ``pv.read(path)`` gives all pieces' cells as one unstructured grid.
 
     The point arrays and the points' type are declared from the first piece; every piece
     must have the same (as :func:`write_piece` writes them).
@@ -142,7 +144,7 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False) -> Path:
     pts = ET.SubElement(grid, "PPoints")
     ET.SubElement(pts, "PDataArray", type=_vtk_type(_vtk_points(first).dtype, "Points"),
                   NumberOfComponents="3")
-    folder = Path(path).parent
+    folder = Path(path).parent if relative_to is None else Path(relative_to)
     for p in paths:
         ET.SubElement(grid, "Piece", Source=_relative(p, folder))
     return _write_text(path, _xml_text(root), overwrite)

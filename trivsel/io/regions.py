@@ -144,9 +144,10 @@ class Volume:
 
     def __init__(self, *, shape, origin, spacing, name, block, dtype, source, by_region=True, coords=None,
                  file_ids=None, slab_axis=0, meta=None):
+        from ..data import check_grid_geometry
+
         self.shape = tuple(int(s) for s in shape)
-        self.origin = np.asarray(origin, float)
-        self.spacing = np.asarray(spacing, float)
+        self.origin, self.spacing = check_grid_geometry(self.shape, origin, spacing)
         self.name = str(name)
         self.source = str(source)
         self.by_region = bool(by_region)
@@ -535,11 +536,12 @@ def _whole_volume(p, array, volume, why=None):
     """Any grid :func:`trivsel.io.load` reads, loaded whole now (a warning says so)."""
     from . import _suffix, load
 
-    log.warning("%s is loaded whole (%s); 'trivsel convert' makes a Zarr store that block jobs read by region",
-                p, why or f"{_suffix(p)} files cannot be read by region")
     data = load(p, array, volume=volume)
     if not data.is_grid:
         raise InputError(f"{str(p)!r} holds scattered points, not a grid: region reads need a regular grid")
+    # after the reader's checks, so that bad input stays one line
+    log.warning("%s is loaded whole (%s); 'trivsel convert' makes a Zarr store that block jobs read by region",
+                p, why or f"{_suffix(p)} files cannot be read by region")
     values = data.values.reshape(data.shape)
     n = data.shape
     c_index = [n[1] * n[2], n[2], 1]  # the C-order index of the unit steps (1,0,0), (0,1,0), (0,0,1)

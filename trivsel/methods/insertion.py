@@ -173,6 +173,15 @@ def _boundary_on_box(data, boundary):
         bad = tris[np.flatnonzero(inside)[0]]
         raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} has a vertex inside the box, "
                          f"not on its surface")
+    # each triangle in one face of the box: a triangle across an edge (cutting a corner
+    # off) can tile the surface's projected area and still leave a grid point outside
+    ijk = data.ijk[tris]  # (m, 3 vertices, 3 axes)
+    hi = np.asarray(data.shape) - 1
+    on_face = np.any(np.all(ijk == 0, axis=1) | np.all(ijk == hi, axis=1), axis=1)
+    if not on_face.all():
+        bad = tris[np.flatnonzero(~on_face)[0]]
+        raise InputError(f"boundary triangle {tuple(int(v) for v in bad)} does not lie in one face of the box "
+                         f"(its vertices are on different faces): it would leave grid points outside the mesh")
     c = data.ijk.astype(float)
     area2 = np.abs(np.cross(c[tris[:, 1]] - c[tris[:, 0]], c[tris[:, 2]] - c[tris[:, 0]])).sum()
     nx, ny, nz = (s - 1 for s in data.shape)
