@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from trivsel.decimation_kernels import _orient
+from trivsel.mesh.validation import orientation_signs
 from trivsel.predicates import orient3d_exact_sign, orient3d_float_sign
 
 
@@ -113,3 +114,19 @@ def test_decimation_integer_orientation_is_the_exact_determinant(extent):
         assert _orient(P, a, b, c, d) == want, (a, b, c, d)
         zero += want == 0
     assert zero >= 50
+
+
+def test_the_mesh_checkers_own_orientation_is_exact():
+    """``check_mesh`` tests orientation without the kernels' predicates: its own test must be
+    exact too, on the same near-flat float inputs and on integers."""
+    pts = np.array([p for q in CASES for p in q])
+    tets = np.arange(len(pts)).reshape(-1, 4)
+    want = [sign(exact_orient(*q)) for q in CASES]
+    assert orientation_signs(pts, tets).tolist() == want
+    rng = np.random.default_rng(5)
+    ijk = rng.integers(-2**40, 2**40, size=(100, 4, 3))  # products beyond int64 and float precision
+    ijk[50:, 3] = ijk[50:, 1] + ijk[50:, 2] - ijk[50:, 0]  # flat
+    ijk[75:, 3, 0] += 1  # flat but for one unit
+    ijk = ijk.reshape(-1, 3)
+    tets = np.arange(400).reshape(-1, 4)
+    assert orientation_signs(ijk, tets).tolist() == [sign(exact_orient(*ijk[t])) for t in tets]
