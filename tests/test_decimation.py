@@ -11,6 +11,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
+
 import trivsel
 from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
@@ -143,7 +145,7 @@ def test_queued_costs_are_those_of_a_brute_force_collapse(key):
     assert np.ptp(S.hkey[S.hpos >= 0]) > 0.1  # real costs, not only zero ones
 
 
-@settings(deadline=None, max_examples=25)
+@settings(deadline=None, max_examples=examples(1 / 6))
 @given(st.tuples(st.integers(2, 5), st.integers(2, 5), st.integers(2, 5)), st.integers(0, 2**31),
        st.sampled_from(["normal", "integers", "flat"]), st.floats(0.0, 0.9), st.sampled_from(["sse", "max"]),
        st.booleans())
