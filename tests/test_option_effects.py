@@ -111,7 +111,6 @@ def _one_flip_gains(first_improving, steps=60):
         _, ids = tm.insert(p)
         before = tm.criterion_sum()
         n = tm.swap(ids)
-        check_mesh(tm)
         gains.append(before - tm.criterion_sum() if n else 0.0)
     return np.array(gains)
 
