@@ -21,6 +21,12 @@ settings.register_profile("ci", max_examples=1000, deadline=None, derandomize=Tr
 settings.load_profile("ci" if IN_CI else "dev")
 
 
+def examples(scale):
+    """A number of hypothesis examples that follows the profile: ``scale`` times its
+    ``max_examples`` (for tests whose cases cost more or less than the usual), at least 1."""
+    return max(1, round(scale * settings.default.max_examples))
+
+
 def pytest_addoption(parser):
     parser.addoption("--run-slow", action="store_true", help="also run the tests marked slow (CI=true does)")
 

@@ -4,6 +4,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
+from conftest import examples
+
 from trivsel.blocks.faces import check_face_mesh, face_residuals, reduce_face, reduce_polyline
 
 # Residuals are recomputed here by other formulas than the kernel's: rounding may differ.
@@ -96,7 +98,7 @@ def orient(nv, a, b, c):
 
 # --- block edges (1-D) ---------------------------------------------------------------------
 
-@settings(max_examples=40)
+@settings(max_examples=examples(4 / 15))
 @given(st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=300), st.floats(0, 50))
 def test_polyline_meets_tolerance_on_random_signals(values, tol):
     kept = reduce_polyline(values, tol_inf=tol)
@@ -104,7 +106,7 @@ def test_polyline_meets_tolerance_on_random_signals(values, tol):
     assert polyline_residuals(values, kept).max() <= tol + SLACK * 1e3
 
 
-@settings(max_examples=10)
+@settings(max_examples=examples(1 / 15))
 @given(st.integers(2, 3000), st.floats(1e-4, 0.5))
 def test_polyline_meets_tolerance_on_smooth_signals(n, tol):
     x = np.linspace(0, 6, n)
@@ -180,7 +182,7 @@ def test_constant_face_inserts_only_the_start_point():
     assert vertices.tolist() == sorted(np.flatnonzero(border).tolist() + [start])
 
 
-@settings(max_examples=15)
+@settings(max_examples=examples(0.1))
 @given(st.integers(2, 12), st.integers(2, 12), st.integers(0, 2**16), st.sampled_from([0.0, 0.05, 0.3]),
        st.booleans())
 def test_face_contract_on_random_faces(nu, nv, seed, tol, from_edges):

@@ -189,13 +189,39 @@ def test_checker_detects_a_broken_link():
         check_mesh(tm)
 
 
-def test_checker_detects_an_inverted_tet():
+@pytest.mark.parametrize("exact", [True, False])
+def test_checker_detects_an_inverted_tet(exact):
     pts, tets = _octahedron()
-    tm = _mesh(pts, tets)
-    t = tm.live_ids()[0]
+    tm = _mesh(pts, tets, exact=exact)
+    t = tm.live_ids()[1]
     tm.S.tets[t, [0, 1]] = tm.S.tets[t, [1, 0]]
-    with pytest.raises(MeshInvalid):
+    with pytest.raises(MeshInvalid, match=rf"tet {t} \[.*\] is not positively oriented"):
         check_mesh(tm)
+
+
+@pytest.mark.parametrize("exact", [True, False])
+def test_checker_detects_an_overlapping_tet(exact):
+    """One tet's vertex replaced by another point so that the tet stays positively oriented
+    but covers part of its neighbours: the mesh no longer tiles the hull."""
+    from itertools import product
+
+    from trivsel.decimation import grid_tetrahedra
+    from trivsel.mesh.validation import orientation_signs
+
+    pts = np.array(list(np.ndindex(3, 3, 3)), float)
+    tm = _mesh(pts, grid_tetrahedra((3, 3, 3)), exact=exact)
+    T = tm.S.tets
+    ids = tm.live_ids()
+    faces = {frozenset(T[t].tolist()) for t in ids}
+    for t, s, p in product(ids, range(4), range(len(pts))):
+        q = T[t].copy()
+        q[s] = p
+        if p not in T[t] and frozenset(q.tolist()) not in faces and orientation_signs(pts, q[None])[0] > 0:
+            break
+    T[t] = q
+    with pytest.raises(MeshInvalid) as info:
+        check_mesh(tm)
+    assert "not positively oriented" not in str(info.value)
 
 
 # ---------------------------------------------------------------- random sequences, checked after every step

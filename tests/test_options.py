@@ -16,6 +16,8 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from conftest import examples
+
 import trivsel
 from trivsel.cli import build_parser
 from trivsel.methods import METHODS, get_method
@@ -43,7 +45,7 @@ def _value_strategy(f):
 _OPTIONS = st.fixed_dictionaries({}, optional={f.name: _value_strategy(f) for f in option_fields()})
 
 
-@settings(max_examples=200, deadline=None)
+@settings(max_examples=examples(4 / 3), deadline=None)
 @given(_OPTIONS)
 def test_cli_args_parse_back_to_the_same_options(kw):
     opts = Options(**kw)
@@ -53,7 +55,7 @@ def test_cli_args_parse_back_to_the_same_options(kw):
     assert from_namespace(ns) == opts
 
 
-@settings(max_examples=100, deadline=None)
+@settings(max_examples=examples(2 / 3), deadline=None)
 @given(_OPTIONS, _OPTIONS)
 def test_variant_tags_are_unique_per_option_set(a, b):
     oa, ob = Options(**a), Options(**b)

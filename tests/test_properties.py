@@ -104,3 +104,37 @@ def test_named_fixtures_that_broke_the_start_mesh(name, method, n, scale):
     p = FIXTURES[name][:n] * scale
     f = np.sin(3 * p[:, 0] / scale) + (p[:, 1] / scale) ** 2 - p[:, 2] / scale
     trivsel.reduce(trivsel.scattered(p, f), fractions=[1.0], method=method, check=check_mesh)
+
+
+def _hypothesis_examples(ci):
+    """``{test: max_examples}`` of every hypothesis test, as collected under CI=true or not."""
+    import json
+    import os
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    here = Path(__file__).parent
+    code = ("import importlib, json, sys; sys.path.insert(0, sys.argv[1]); import conftest\n"
+            "out = {}\n"
+            "for name in sys.argv[2:]:\n"
+            "    m = importlib.import_module(name)\n"
+            "    for k, f in vars(m).items():\n"
+            "        s = getattr(f, '_hypothesis_internal_use_settings', None)\n"
+            "        if s is not None and hasattr(f, 'hypothesis'):\n"
+            "            out[name + '.' + k] = s.max_examples\n"
+            "print(json.dumps(out))\n")
+    modules = sorted(p.stem for p in here.glob("test_*.py") if "@given" in p.read_text())
+    env = {**os.environ, "CI": "true" if ci else "false"}
+    r = subprocess.run([sys.executable, "-c", code, str(here), *modules], capture_output=True, text=True, env=env,
+                       check=True)
+    return json.loads(r.stdout)
+
+
+def test_every_hypothesis_test_runs_more_examples_in_ci():
+    """No @given test fixes its own count: each follows the profile (CI=true: 1000 examples
+    where a plain run has 150), scaled for tests whose cases cost more or less."""
+    dev, ci = _hypothesis_examples(False), _hypothesis_examples(True)
+    assert set(dev) == set(ci) and len(dev) >= 7, sorted(dev)
+    for name in dev:
+        assert ci[name] >= 6 * dev[name], (name, dev[name], ci[name])
