@@ -182,7 +182,7 @@ def test_mesh_files_are_what_pyvista_writes(tmp_path, make):
 
 def test_a_mesh_file_that_cannot_be_written_is_an_error(tmp_path):
     result = trivsel.reduce(4, n=4, fractions=[0.5])
-    with pytest.raises(OSError, match="could not write"):
+    with pytest.raises(OSError, match="No such file"):
         tio.write_vtu(tio.snapshot_to_vtk(result, result.snapshots[0]), tmp_path / "missing" / "m.vtu")
 
 

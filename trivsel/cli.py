@@ -165,14 +165,15 @@ def _show_stages():
 def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
-    from .io import check_output_dir, format_rows, load, write_outputs
+    from .io import check_output_dir, format_rows, fraction_label, import_vtk_writer, load, write_outputs
     from .options import from_namespace
     from .reduction import reduce
 
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
     options = from_namespace(a)
-    check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None])  # before any work
+    files = ["errors.csv", "result.json"] + [f"mesh_{fraction_label(f)}.vtu" for f in a.fractions or ()]
+    check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None], files)  # before any work
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
     if show:
         _show_stages()
@@ -193,6 +194,7 @@ def _cmd_reduce(a):
         check = check_mesh
     boundary = None if a.boundary is None else _read_triangles(a.boundary)
     inputs = [p for p in (a.input, a.boundary) if p is not None]
+    import_vtk_writer()  # now, not when the selection is done: see import_vtk_writer
     result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
                     boundary=boundary, options=options, threads=a.threads, check=check,
                     progress=_progress_line if show else None)

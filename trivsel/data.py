@@ -21,7 +21,8 @@ import numpy as np
 from .exceptions import InputError
 from .functions import FUNCTIONS, resolve_function
 
-__all__ = ["PointData", "sample_grid", "grid_from_array", "scattered", "points_values"]
+__all__ = ["PointData", "sample_grid", "grid_from_array", "scattered", "points_values", "check_exact_integers",
+           "check_geometry", "EXACT_INTEGER"]
 
 
 @dataclass
@@ -118,18 +119,65 @@ def sample_grid(function, n: int = 16) -> PointData:
                      meta={"function": num, "n": n})
 
 
-def _real_array(a, name):
+#: Largest integer magnitude every float64 holds exactly; larger integer samples are refused.
+EXACT_INTEGER = 2**53
+
+
+def check_exact_integers(a, place) -> None:
+    """One-line InputError when the integer array ``a`` holds a value that float64 cannot hold
+    exactly (beyond 2^53 in magnitude), instead of rounding it; ``place(index)`` names where the
+    first such value is (``"grid index (1, 2, 3) of 'x.npy'"``).  Other arrays pass."""
+    a = np.asarray(a)
+    if a.dtype.kind not in "iu" or a.dtype.itemsize <= 4 or not a.size:  # 32-bit integers always fit
+        return
+    big = a > EXACT_INTEGER
+    if a.dtype.kind == "i":
+        big |= a < -EXACT_INTEGER
+    if big.any():
+        at = tuple(int(i) for i in np.argwhere(big)[0])
+        raise InputError(f"value {int(a[at])} at {place(at)} is beyond 2^53: float64 cannot hold it exactly")
+
+
+def _real_array(a, name, place=None):
     """``a`` as float64; complex, boolean, text or object data are refused instead of
-    being cast (a cast would drop imaginary parts or reinterpret the data)."""
+    being cast (a cast would drop imaginary parts or reinterpret the data), and so are
+    integers that float64 cannot hold exactly (:func:`check_exact_integers`)."""
     arr = np.asarray(a)
     if arr.dtype.kind not in "iuf":
         raise InputError(f"{name} must be real numbers, got an array of dtype {arr.dtype}")
+    check_exact_integers(arr, place or (lambda at: f"index {at} of the {name}"))
     return arr.astype(float, copy=False)
+
+
+def check_geometry(origin, spacing, shape, name="data"):
+    """A grid's ``origin`` and ``spacing`` as (3,) float64 arrays: three finite numbers each,
+    the spacing positive, and the last grid point ``origin + (shape - 1) * spacing`` finite
+    (no coordinate overflows).  One-line InputError naming the grid and the bad values."""
+    o = np.asarray(origin, float).ravel() if np.size(origin) == 3 else None
+    if o is None or not np.all(np.isfinite(o)):
+        raise InputError(f"grid {name!r}: the origin must be 3 finite numbers, got {_numbers(origin)}")
+    sp = np.asarray(spacing, float).ravel() if np.size(spacing) == 3 else None
+    if sp is None or np.any(sp <= 0) or not np.all(np.isfinite(sp)):
+        raise InputError(f"grid spacing must be positive and finite, got {_numbers(spacing)}")
+    with np.errstate(over="ignore", invalid="ignore"):
+        last = o + (np.asarray(shape, float) - 1) * sp
+    if not np.all(np.isfinite(last)):
+        raise InputError(f"grid {name!r}: the coordinates overflow (origin {_numbers(o)}, spacing {_numbers(sp)}, "
+                         f"shape {tuple(int(n) for n in shape)} reach {_numbers(last)})")
+    return o, sp
+
+
+def _numbers(v):
+    """Numbers as a plain tuple for a message (``(nan, 0.0, 1.0)``, not numpy reprs)."""
+    try:
+        return tuple(float(x) for x in np.asarray(v, float).ravel())
+    except (TypeError, ValueError):
+        return v
 
 
 def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), name="data"):
     """Wrap a 3-D array of samples (indexed ``[i, j, k]`` = x, y, z) as grid data."""
-    v = _real_array(values3d, "values")
+    v = _real_array(values3d, "values", lambda at: f"grid index {at} of {name!r}")
     if v.ndim != 3:
         raise InputError(f"grid values must be a 3-D array, got shape {v.shape}")
     if min(v.shape) < 2:
@@ -140,10 +188,7 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
     from .resources import GRID_BYTES_PER_POINT, check_memory
 
     check_memory(GRID_BYTES_PER_POINT * float(v.size), f"a grid of {v.shape} points")
-    origin = np.asarray(origin, float)
-    spacing = np.asarray(spacing, float)
-    if np.any(spacing <= 0) or not np.all(np.isfinite(spacing)):
-        raise InputError(f"grid spacing must be positive and finite, got {tuple(spacing)}")
+    origin, spacing = check_geometry(origin, spacing, v.shape, name)
     idx = [np.arange(s) for s in v.shape]
     ii, jj, kk = np.meshgrid(*idx, indexing="ij")
     ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1).astype(np.int64)
@@ -152,10 +197,10 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
                      origin=origin, spacing=spacing, name=name)
 
 
-def points_values(points, values):
+def points_values(points, values, name="data"):
     """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
-    p = _real_array(points, "points")
-    f = _real_array(values, "values")
+    p = _real_array(points, "points", lambda at: f"point {at[0]} (coordinate {at[-1]}) of {name!r}")
+    f = _real_array(values, "values", lambda at: f"point {at[0]} of {name!r}")
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"points must have shape (N, 3), got {p.shape}")
     if f.shape != (p.shape[0],):
@@ -170,7 +215,7 @@ def scattered(points, values, name="data") -> PointData:
     point sets that do not span 3-D space (all coplanar), each with a one-line
     :class:`~trivsel.exceptions.InputError` naming the bad value.
     """
-    p, f = points_values(points, values)
+    p, f = points_values(points, values, name)
     if p.shape[0] < 5:
         raise InputError(f"too few points: need at least 5 for a 3-D triangulation, got {p.shape[0]}")
     if not np.all(np.isfinite(p)):

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from .exceptions import InputError
-from .io import _read_vtk_dataset, _vtk_points, tetra_grid, write_vtu
+from .io import _read_vtk_dataset, _vtk_points, tetra_grid, umask_mode, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -34,8 +34,9 @@ _VTK_TYPES = {("i", 1): "Int8", ("u", 1): "UInt8", ("i", 2): "Int16", ("u", 2): 
 
 def _atomic_write(path, write, overwrite):
     """``write(tmp)`` into a temporary file beside ``path`` (same suffix: VTK picks its
-    writer by it), then :func:`os.replace` it onto ``path``.  Refuses an existing ``path``
-    unless ``overwrite``; removes the temporary file on any failure."""
+    writer by it), then :func:`os.replace` it onto ``path`` with the usual permissions (0666
+    less the umask).  Refuses an existing ``path`` unless ``overwrite``; removes the
+    temporary file on any failure."""
     path = Path(path)
     if not overwrite and (path.exists() or path.is_symlink()):
         raise InputError(f"{str(path)!r} exists; pass overwrite=True to replace it")
@@ -43,6 +44,7 @@ def _atomic_write(path, write, overwrite):
     fd, tmp = tempfile.mkstemp(prefix=f".{path.stem}.tmp-", suffix=path.suffix, dir=path.parent)
     os.close(fd)
     try:
+        os.chmod(tmp, umask_mode())  # mkstemp's file is private (0600): the usual permissions instead
         write(tmp)
         os.replace(tmp, path)
     finally:
