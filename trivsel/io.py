@@ -27,10 +27,15 @@ axis fastest, as stored, and as a VTK point id counts), within the chosen volume
 ``value == data[..., K].ravel(order="F")[original_index]`` for nibabel's ``get_fdata()`` or
 pynrrd's array (with the non-spatial axis last).
 
+Every reader refuses, in one line, integers that float64 cannot hold exactly (beyond 2^53), a
+non-finite origin or spacing (also where VTK's readers would read ``nan`` as 0) and coordinates
+that overflow, and checks the memory a file needs from its header before reading its data.
+
 Outputs (:func:`write_outputs`) go first to a temporary folder inside the target
 and are moved into place only when all of them are complete, so a failure never
 leaves partial or corrupt files; a manifest lists what trivsel wrote, so a new run
-replaces exactly the files of the previous one and never touches an input.
+replaces exactly the files of the previous one and never touches an input or a file
+that no trivsel run wrote.
 """
 
 from __future__ import annotations
@@ -392,6 +397,8 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     if m.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(m)) and np.all(np.isfinite(t))):
         raise InputError(f"{str(p)!r}: the {what} must be a finite 3 x 3 matrix and offset, got {text} "
                          f"and {np.array2string(t, separator=', ')}")
+    if np.any(np.abs(m).max(axis=0) == 0):  # before the alignment test, which it would fail confusingly
+        raise InputError(f"{str(p)!r} has a zero voxel size (its {what}: {text})")
     axis = np.argmax(np.abs(m), axis=0)  # the world axis each voxel axis runs along
     if sorted(axis.tolist()) != [0, 1, 2]:
         raise InputError(f"{str(p)!r} is not axis-aligned (oblique or singular {what} {text}); "
@@ -401,8 +408,6 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     off = m.copy()
     off[np.arange(3), order] = 0.0
     size = np.abs(m).max(axis=0)  # each voxel axis's step length
-    if np.any(size == 0):
-        raise InputError(f"{str(p)!r} has a zero voxel size (its {what}: {text})")
     if np.any(np.abs(off).max(axis=0) > AXIS_TOLERANCE * size):
         raise InputError(f"{str(p)!r} is oblique (off-axis terms in its {what} {text}); only axis-aligned "
                          "images (flipped or permuted axes allowed) are supported: resample it first")
@@ -764,18 +769,27 @@ def umask_mode(mode: int = 0o666) -> int:
 def signals_deferred():
     """SIGINT and SIGTERM held back while the block runs and delivered when it ends, so a
     step that must not stop half-way (an import of VTK's extension modules, the moves that
-    put a run's outputs in place) completes first.  Only the main thread gets signals."""
+    put a run's outputs in place) completes first.  Only the main thread sets handlers.
+
+    The handlers are replaced by ones that only note the signal (blocking the signal with
+    ``pthread_sigmask`` is not enough: numpy's BLAS threads would still take it).
+    """
     import signal
     import threading
 
-    if threading.current_thread() is not threading.main_thread() or not hasattr(signal, "pthread_sigmask"):
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
-    old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT, signal.SIGTERM})
+    pending = []
+    previous = {s: signal.signal(s, lambda signum, frame: pending.append(signum))
+                for s in (signal.SIGINT, signal.SIGTERM)}
     try:
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)  # None: set outside Python
+        if pending:
+            signal.raise_signal(pending[0])  # to the handler the caller had
 
 
 def import_vtk_writer():

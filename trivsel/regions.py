@@ -611,9 +611,12 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
     Raises
     ------
     InputError
-        One line: an existing ``out``, a name without ``.zarr``, bad ``chunks``, or what
-        :func:`open_volume` refuses.  Nothing is left behind on any failure or interruption:
-        the store is written into a temporary sibling folder and renamed at the end.
+        One line: an existing or empty ``out``, one inside the input, a name without ``.zarr``,
+        bad ``chunks``, a failure to write (a full disk), or what :func:`open_volume` refuses.
+        Nothing is left behind on any failure or interruption: the store is written into a
+        temporary sibling folder (named by host and process, so that the next run removes
+        what a killed one left) and renamed at the end, never over an ``out`` that appeared
+        meanwhile; it gets the usual permissions (0777 less the umask).
     """
     from .io import check_writable, remove_dead_temporaries, remove_tree, rename_no_replace, temporary_prefix
     from .io import umask_mode
