@@ -155,19 +155,19 @@ def check_geometry(origin, spacing, shape, name="data"):
     (no coordinate overflows).  One-line InputError naming the grid and the bad values."""
     o = np.asarray(origin, float).ravel() if np.size(origin) == 3 else None
     if o is None or not np.all(np.isfinite(o)):
-        raise InputError(f"grid {name!r}: the origin must be 3 finite numbers, got {_numbers(origin)}")
+        raise InputError(f"grid {name!r}: the origin must be 3 finite numbers, got {plain_tuple(origin)}")
     sp = np.asarray(spacing, float).ravel() if np.size(spacing) == 3 else None
     if sp is None or np.any(sp <= 0) or not np.all(np.isfinite(sp)):
-        raise InputError(f"grid spacing must be positive and finite, got {_numbers(spacing)}")
+        raise InputError(f"grid spacing must be positive and finite, got {plain_tuple(spacing)}")
     with np.errstate(over="ignore", invalid="ignore"):
         last = o + (np.asarray(shape, float) - 1) * sp
     if not np.all(np.isfinite(last)):
-        raise InputError(f"grid {name!r}: the coordinates overflow (origin {_numbers(o)}, spacing {_numbers(sp)}, "
-                         f"shape {tuple(int(n) for n in shape)} reach {_numbers(last)})")
+        raise InputError(f"grid {name!r}: the coordinates overflow (origin {plain_tuple(o)}, spacing "
+                         f"{plain_tuple(sp)}, shape {tuple(int(n) for n in shape)} reach {plain_tuple(last)})")
     return o, sp
 
 
-def _numbers(v):
+def plain_tuple(v):
     """Numbers as a plain tuple for a message (``(nan, 0.0, 1.0)``, not numpy reprs)."""
     try:
         return tuple(float(x) for x in np.asarray(v, float).ravel())

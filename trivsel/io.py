@@ -52,9 +52,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .data import PointData, _numbers, check_exact_integers, grid_from_array, scattered
+from .data import PointData, check_exact_integers, grid_from_array, plain_tuple, scattered
 from .exceptions import InputError, one_line
-from .resources import GRID_BYTES_PER_POINT
+from .resources import GRID_BYTES_PER_POINT, check_memory
 
 __all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
            "snapshot_to_pyvista", "tetra_grid", "write_vtu",
@@ -84,7 +84,7 @@ def _read_csv(p, array):
     import pandas as pd
 
     rows = _count_lines(p)
-    _check_reader_memory(rows * (5 * 8 + GRID_BYTES_PER_POINT), f"reading {str(p)!r} ({rows} lines)")
+    check_memory(rows * (5 * 8 + GRID_BYTES_PER_POINT), f"reading {str(p)!r} ({rows} lines)")
     try:
         df = pd.read_csv(p)
     except Exception as exc:  # pandas raises many types
@@ -118,12 +118,6 @@ def _count_lines(p) -> int:
         while chunk := fh.read(1 << 24):
             n += chunk.count(b"\n")
     return n
-
-
-def _check_reader_memory(nbytes, what):
-    from .resources import check_memory
-
-    check_memory(float(nbytes), what)
 
 
 def _npz_member_shapes(p):
@@ -163,7 +157,7 @@ def _read_npz(p, array):
         count = float(np.prod(members[key][0]))
         stored = sum(float(np.prod(shape)) * dt.itemsize for name, (shape, dt) in members.items()
                      if name in (key, "points"))
-        _check_reader_memory(stored + GRID_BYTES_PER_POINT * count,
+        check_memory(stored + GRID_BYTES_PER_POINT * count,
                              f"reading {str(p)!r} ({key!r} of shape {members[key][0]})")
     try:
         with np.load(p) as z:  # allow_pickle=False: object arrays are refused, never unpickled
@@ -225,7 +219,7 @@ def _read_vtk_dataset(p, what=None):
     try:
         n = _vtk_points_in_header(reader)
         if n:
-            _check_reader_memory(GRID_BYTES_PER_POINT * n, f"reading {str(p)!r} ({n} points)")
+            check_memory(GRID_BYTES_PER_POINT * n, f"reading {str(p)!r} ({n} points)")
         reader.Update()
         ds = reader.GetOutputDataObject(0)  # asks the pipeline again when the read failed
     finally:
@@ -465,7 +459,7 @@ def open_nifti(p, array, volume, *, keep_file_open=False):
     pixdim = np.asarray(stored["pixdim"][1:4], float)
     if int(stored["sform_code"]) == 0 and not (np.all(np.isfinite(pixdim)) and np.all(pixdim != 0)):
         # the qform and method 1 scale by pixdim; nibabel would silently take 1 for a 0
-        raise InputError(f"{str(p)!r} has a zero or missing voxel size (pixdim[1:4] = {_numbers(pixdim)}) and "
+        raise InputError(f"{str(p)!r} has a zero or missing voxel size (pixdim[1:4] = {plain_tuple(pixdim)}) and "
                          "no sform to place it otherwise; set the voxel sizes in its header")
     if int(hdr["sform_code"]) == 0 and int(hdr["qform_code"]) == 0:
         # no orientation in the file: the standard's method 1 (voxel sizes, origin at 0), not
@@ -481,7 +475,7 @@ def _read_nifti(p, array, *, volume=None):
     placement by the affine, flipped and permuted axes undone, oblique images refused."""
     img, shape, dtype, k, affine = open_nifti(p, array, volume)
     n3 = float(np.prod(shape[:3]))
-    _check_reader_memory(8.0 * float(np.prod(shape)) + (8 + GRID_BYTES_PER_POINT) * n3,
+    check_memory(8.0 * float(np.prod(shape)) + (8 + GRID_BYTES_PER_POINT) * n3,
                          f"reading {str(p)!r} (shape {tuple(shape)})")
     try:
         if dtype.kind in "iu" and dtype.itemsize > 4:  # as stored: float64 would round beyond 2^53
@@ -548,7 +542,7 @@ def _read_nrrd(p, array, *, volume=None):
     count = float(np.prod(sizes))
     n3 = float(np.prod(sorted(sizes, reverse=True)[:3]))  # at most the largest three axes are spatial
     # the samples (twice: a compressed stream is decoded into a buffer first), then the grid of one volume
-    _check_reader_memory(2.0 * itemsize * count + (8 + GRID_BYTES_PER_POINT) * n3,
+    check_memory(2.0 * itemsize * count + (8 + GRID_BYTES_PER_POINT) * n3,
                          f"reading {str(p)!r} (sizes {tuple(sizes)})")
     try:
         values, header = nrrd.read(str(p))
@@ -924,12 +918,15 @@ def _folder_lock(out):
     import fcntl
 
     fd = os.open(out, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    log = logging.getLogger("trivsel")
     try:
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
-            logging.getLogger("trivsel").warning("waiting for another trivsel run writing into %s", out)
+            log.warning("waiting for another trivsel run writing into %s", out)
             fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:  # a file system without locks (some network mounts): write unlocked
+            log.warning("cannot lock %s (%s); concurrent runs into it are not serialised", out, one_line(exc))
         yield
     finally:
         os.close(fd)  # releases the lock
