@@ -196,6 +196,13 @@ def _huge_npz(p):
         z.writestr("values.npy", buf.getvalue() + b"\0" * 64)
 
 
+def _huge_npy(p):
+    """A .npy whose header declares 2e11 x 3 int64 (4.4 TiB) over a few bytes of data."""
+    with open(p, "wb") as fh:
+        np.lib.format.write_array_header_2_0(fh, {"descr": "<i8", "fortran_order": False, "shape": (2 * 10**11, 3)})
+        fh.write(b"\0" * 64)
+
+
 def _huge_nhdr(p):
     """A raw NRRD header declaring 4000^3 float64 samples over a data file of 64 bytes."""
     (p.parent / "huge.raw").write_bytes(b"\0" * 64)
@@ -269,6 +276,8 @@ def _input_cases(tmp: Path):
                                                 *red], 2, f"value {-BIG} at point 7 of 'bigs' {BEYOND}"),
         ("CSV of integers beyond 2^53", ["reduce", _write(tmp, "big.csv", _text(csv)), *red], 2,
          f"value {-BIG} at point 7 of 'big' {BEYOND}"),
+        ("CSV of integers beyond 64 bits", ["reduce", _write(tmp, "huge.csv", _text(csv.replace(
+            f",{-BIG}\n", f",{2**64 + 5}\n"))), *red], 2, f"value {2**64 + 5} at point 7 of 'huge' {BEYOND}"),
         ("vti of integers beyond 2^53", ["reduce", _write(tmp, "big.vti", _vti(_big_grid())), *red], 2,
          f"value {BIG} at grid index (1, 2, 0) of 'big' {BEYOND}"),
         ("NRRD of uint64 beyond 2^53", ["reduce", _write(tmp, "big.nrrd", _nrrd(_big_grid(np.uint64), {})), *red],
@@ -315,6 +324,8 @@ def _input_cases(tmp: Path):
         ("convert: zarr coordinates overflow",
          ["convert", _write(tmp, "of.zarr", _zarr(grid, {"origin": [1e308] * 3, "spacing": [1e308] * 3})),
           str(tmp / "out" / "o.zarr")], 2, "the coordinates overflow"),
+        ("boundary header beyond memory", ["reduce", *FN, "--boundary", _write(tmp, "huge_b.npy", _huge_npy),
+                                           *red], 2, "huge_b.npy' (shape (200000000000, 3)) needs about"),
         ("npz header beyond memory", ["reduce", _write(tmp, "huge.npz", _huge_npz), *red], 2,
          "('values' of shape (4000, 4000, 4000)) needs about"),
         ("raw NRRD header beyond memory", ["reduce", _write(tmp, "huge.nhdr", _huge_nhdr), *red], 2,

@@ -209,6 +209,16 @@ def _read_triangles(path):
     """An (m, 3) integer array from a ``.npy`` file (never unpickled)."""
     import numpy as np
 
+    from .io import npy_header
+    from .resources import check_memory
+
+    try:
+        with open(path, "rb") as fh:
+            shape, dtype = npy_header(fh)
+    except (OSError, ValueError):
+        pass  # np.load says what is wrong
+    else:
+        check_memory(float(np.prod(shape)) * dtype.itemsize, f"reading boundary {path!r} (shape {shape})")
     try:
         tris = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

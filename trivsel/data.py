@@ -14,6 +14,7 @@ Point numbering is C order over ``(i, j, k)``: ``index = (i (n+1) + j) (n+1) + k
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -128,11 +129,15 @@ def check_exact_integers(a, place) -> None:
     exactly (beyond 2^53 in magnitude), instead of rounding it; ``place(index)`` names where the
     first such value is (``"grid index (1, 2, 3) of 'x.npy'"``).  Other arrays pass."""
     a = np.asarray(a)
-    if a.dtype.kind not in "iu" or a.dtype.itemsize <= 4 or not a.size:  # 32-bit integers always fit
+    if a.dtype.kind == "O":  # Python integers beyond 64 bits (a CSV column of them)
+        big = np.array([isinstance(x, numbers.Integral) and abs(int(x)) > EXACT_INTEGER for x in a.ravel()],
+                       bool).reshape(a.shape)
+    elif a.dtype.kind not in "iu" or a.dtype.itemsize <= 4 or not a.size:  # 32-bit integers always fit
         return
-    big = a > EXACT_INTEGER
-    if a.dtype.kind == "i":
-        big |= a < -EXACT_INTEGER
+    else:
+        big = a > EXACT_INTEGER
+        if a.dtype.kind == "i":
+            big |= a < -EXACT_INTEGER
     if big.any():
         at = tuple(int(i) for i in np.argwhere(big)[0])
         raise InputError(f"value {int(a[at])} at {place(at)} is beyond 2^53: float64 cannot hold it exactly")

@@ -99,16 +99,21 @@ def _read_csv(p, array):
     col = _pick_array(others, array, p)
     try:
         # integers as read (scattered() refuses those float64 cannot hold), anything else as float
-        pts = np.stack([_number_column(df[cols[c]]) for c in "xyz"], axis=1)
-        vals = _number_column(df[col])
+        pts = np.stack([_number_column(df[cols[c]], p) for c in "xyz"], axis=1)
+        vals = _number_column(df[col], p)
     except ValueError as exc:
         raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
     return scattered(pts, vals, name=p.stem)
 
 
-def _number_column(column):
+def _number_column(column, p):
+    """A CSV column as numbers: integers as pandas read them (checked later), integers beyond
+    64 bits (kept as Python ints) refused, anything else converted to float (text: ValueError)."""
     a = column.to_numpy()
-    return a if a.dtype.kind in "iuf" else a.astype(float)
+    if a.dtype.kind in "iuf":
+        return a
+    check_exact_integers(a, lambda at: f"point {at[0]} of {_stem(p)!r}")
+    return a.astype(float)
 
 
 def _count_lines(p) -> int:
@@ -131,14 +136,19 @@ def _npz_member_shapes(p):
                 continue
             with z.open(info) as fh:
                 try:
-                    version = np.lib.format.read_magic(fh)
-                    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else \
-                        np.lib.format.read_array_header_2_0
-                    shape, _, dtype = read(fh)
+                    out[info.filename[:-4]] = npy_header(fh)
                 except Exception:  # a damaged member: np.load says what is wrong
                     continue
-            out[info.filename[:-4]] = (tuple(shape), np.dtype(dtype))
     return out
+
+
+def npy_header(fh):
+    """``(shape, dtype)`` from the header of the ``.npy`` data at the file object's position
+    (nothing else is read)."""
+    version = np.lib.format.read_magic(fh)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read(fh)
+    return tuple(shape), np.dtype(dtype)
 
 
 def _read_npz(p, array):
