@@ -452,3 +452,19 @@ def test_convert_on_a_full_disk_gives_one_line_and_leaves_nothing(tmp_path, caps
     assert main(["convert", str(tmp_path / "a.npy"), str(out)]) == 2
     assert capsys.readouterr().err == f"trivsel: error: cannot write {str(out)!r}: [Errno 28] No space left on device\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["a.npy"]
+
+
+def test_a_signal_while_the_outputs_are_moved_lets_the_moves_finish(tmp_path, monkeypatch):
+    """SIGTERM during the moves into place: they complete, and the run ends normally with the
+    new results (not "interrupted; the folder is as it was", which would be false then)."""
+    out = tmp_path / "d"
+    assert _run("--fractions", "0.5", "--out", str(out)) == 0
+    real = tio._commit
+
+    def signalled(tmp, folder, names):
+        os.kill(os.getpid(), signal.SIGTERM)
+        return real(tmp, folder, names)
+
+    monkeypatch.setattr(tio, "_commit", signalled)
+    assert _run("--fractions", "0.3", "--out", str(out)) == 0
+    assert _listing(out) == [tio.MANIFEST, "errors.csv", "mesh_0.3.vtu", "result.json"]

@@ -770,10 +770,12 @@ def umask_mode(mode: int = 0o666) -> int:
 
 
 @contextlib.contextmanager
-def signals_deferred():
+def signals_deferred(*, deliver: bool = True):
     """SIGINT and SIGTERM held back while the block runs and delivered when it ends, so a
     step that must not stop half-way (an import of VTK's extension modules, the moves that
     put a run's outputs in place) completes first.  Only the main thread sets handlers.
+    ``deliver=False``: a signal that came is dropped (the step it waited for finished the
+    run's work, so the run ends normally a moment later).
 
     The handlers are replaced by ones that only note the signal (blocking the signal with
     ``pthread_sigmask`` is not enough: numpy's BLAS threads would still take it).
@@ -792,7 +794,7 @@ def signals_deferred():
     finally:
         for s, handler in previous.items():
             signal.signal(s, signal.SIG_DFL if handler is None else handler)  # None: set outside Python
-        if pending:
+        if pending and deliver:
             signal.raise_signal(pending[0])  # to the handler the caller had
 
 
@@ -1023,14 +1025,18 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
         with _folder_lock(out):
             _remove_stale_temporaries(out)
             tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=out))
+            committed = False
             try:
                 _write_into(result, tmp, extra)
                 names = json.loads((tmp / MANIFEST).read_text())["files"]
                 _check_foreign_files(out, names)
-                with signals_deferred():  # the moves complete, or none starts
+                # the moves complete, or none starts; once they are done the results are complete,
+                # and a signal then must not report "the folder is as it was"
+                with signals_deferred(deliver=False):
                     _commit(tmp, out, names)
+                    committed = True
             finally:
-                with signals_deferred():
+                with signals_deferred(deliver=not committed):
                     shutil.rmtree(tmp, ignore_errors=True)
     except BaseException as exc:
         if created:

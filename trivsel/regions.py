@@ -618,8 +618,8 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         what a killed one left) and renamed at the end, never over an ``out`` that appeared
         meanwhile; it gets the usual permissions (0777 less the umask).
     """
-    from .io import check_writable, remove_dead_temporaries, remove_tree, rename_no_replace, temporary_prefix
-    from .io import umask_mode
+    from .io import check_writable, remove_dead_temporaries, remove_tree, rename_no_replace, signals_deferred
+    from .io import temporary_prefix, umask_mode
 
     if not str(out).strip():
         raise InputError(f"the output {str(out)!r} is empty: name a new *.zarr store")
@@ -661,6 +661,9 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         os.chmod(tmp, umask_mode(0o777))  # mkdtemp's folder is private (0700): the usual permissions
         rename_no_replace(tmp, out)  # never replaces an out that appeared meanwhile (even an empty folder)
     except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):
+            with signals_deferred():
+                _settle_zarr()
         if tmp is not None:
             remove_tree(tmp)
         for d in created:  # the parent folders this run made, if still empty
@@ -674,6 +677,28 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         raise
     log.info("wrote %s (%s, %s) in %.1f s", out, vol.shape, dtype, time.perf_counter() - t0)
     return out
+
+
+def _settle_zarr(timeout=10.0):
+    """Let the write tasks that an interrupt abandoned in zarr's event loop (a thread of its own)
+    finish, so that no chunk is written after the store is removed, and no task is destroyed
+    pending when the process ends (asyncio would report each on stderr)."""
+    import asyncio
+
+    try:
+        from zarr.core.sync import loop  # zarr 3: [the loop] once one was started
+    except ImportError:  # zarr 2 writes synchronously
+        return
+    if loop[0] is None or not loop[0].is_running():
+        return
+
+    async def others():
+        tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        if tasks:
+            await asyncio.wait(tasks, timeout=timeout)
+
+    with contextlib.suppress(Exception):
+        asyncio.run_coroutine_threadsafe(others(), loop[0]).result(timeout + 1)
 
 
 def _write_zarr(vol, path, chunks, dtype):
