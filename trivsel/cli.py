@@ -173,14 +173,15 @@ def _show_stages():
 def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
-    from .io import check_output_dir, format_rows, load, write_outputs
+    from .io import check_output_dir, format_rows, fraction_label, import_vtk_writer, load, write_outputs
     from .options import from_namespace
     from .reduction import reduce
 
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
     options = from_namespace(a)
-    check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None])  # before any work
+    files = ["errors.csv", "result.json"] + [f"mesh_{fraction_label(f)}.vtu" for f in a.fractions or ()]
+    check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None], files)  # before any work
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
     if show:
         _show_stages()
@@ -196,6 +197,7 @@ def _cmd_reduce(a):
         check = check_mesh
     boundary = None if a.boundary is None else _read_triangles(a.boundary)
     inputs = [p for p in (a.input, a.boundary) if p is not None]
+    import_vtk_writer()  # now, not when the selection is done: see import_vtk_writer
     try:
         if a.function is not None:
             data = sample_grid(resolve_function(a.function), a.n)
@@ -274,6 +276,16 @@ def _read_triangles(path):
     """An (m, 3) integer array from a ``.npy`` file (never unpickled)."""
     import numpy as np
 
+    from .io import npy_header
+    from .resources import check_memory
+
+    try:
+        with open(path, "rb") as fh:
+            shape, dtype = npy_header(fh)
+    except (OSError, ValueError):
+        pass  # np.load says what is wrong
+    else:
+        check_memory(float(np.prod(shape)) * dtype.itemsize, f"reading boundary {path!r} (shape {shape})")
     try:
         tris = np.load(path, allow_pickle=False)
     except (OSError, ValueError) as exc:

@@ -14,6 +14,7 @@ Point numbering is C order over ``(i, j, k)``: ``index = (i (n+1) + j) (n+1) + k
 
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -21,7 +22,8 @@ import numpy as np
 from .exceptions import InputError
 from .functions import FUNCTIONS, resolve_function
 
-__all__ = ["PointData", "sample_grid", "grid_from_array", "check_grid_geometry", "scattered", "points_values"]
+__all__ = ["PointData", "sample_grid", "grid_from_array", "check_grid_geometry", "scattered", "points_values",
+           "check_exact_integers", "plain_tuple", "EXACT_INTEGER"]
 
 
 @dataclass
@@ -118,12 +120,37 @@ def sample_grid(function, n: int = 16) -> PointData:
                      meta={"function": num, "n": n})
 
 
-def _real_array(a, name):
+#: Largest integer magnitude every float64 holds exactly; larger integer samples are refused.
+EXACT_INTEGER = 2**53
+
+
+def check_exact_integers(a, place) -> None:
+    """One-line InputError when the integer array ``a`` holds a value that float64 cannot hold
+    exactly (beyond 2^53 in magnitude), instead of rounding it; ``place(index)`` names where the
+    first such value is (``"grid index (1, 2, 3) of 'x.npy'"``).  Other arrays pass."""
+    a = np.asarray(a)
+    if a.dtype.kind == "O":  # Python integers beyond 64 bits (a CSV column of them)
+        big = np.array([isinstance(x, numbers.Integral) and abs(int(x)) > EXACT_INTEGER for x in a.ravel()],
+                       bool).reshape(a.shape)
+    elif a.dtype.kind not in "iu" or a.dtype.itemsize <= 4 or not a.size:  # 32-bit integers always fit
+        return
+    else:
+        big = a > EXACT_INTEGER
+        if a.dtype.kind == "i":
+            big |= a < -EXACT_INTEGER
+    if big.any():
+        at = tuple(int(i) for i in np.argwhere(big)[0])
+        raise InputError(f"value {int(a[at])} at {place(at)} is beyond 2^53: float64 cannot hold it exactly")
+
+
+def _real_array(a, name, place=None):
     """``a`` as float64; complex, boolean, text or object data are refused instead of
-    being cast (a cast would drop imaginary parts or reinterpret the data)."""
+    being cast (a cast would drop imaginary parts or reinterpret the data), and so are
+    integers that float64 cannot hold exactly (:func:`check_exact_integers`)."""
     arr = np.asarray(a)
     if arr.dtype.kind not in "iuf":
         raise InputError(f"{name} must be real numbers, got an array of dtype {arr.dtype}")
+    check_exact_integers(arr, place or (lambda at: f"index {at} of the {name}"))
     return arr.astype(float, copy=False)
 
 
@@ -165,9 +192,17 @@ def check_grid_geometry(shape, origin, spacing):
     return o, sp
 
 
+def plain_tuple(v):
+    """Numbers as a plain tuple for a message (``(nan, 0.0, 1.0)``, not numpy reprs)."""
+    try:
+        return tuple(float(x) for x in np.asarray(v, float).ravel())
+    except (TypeError, ValueError):
+        return v
+
+
 def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), name="data"):
     """Wrap a 3-D array of samples (indexed ``[i, j, k]`` = x, y, z) as grid data."""
-    v = _real_array(values3d, "values")
+    v = _real_array(values3d, "values", lambda at: f"grid index {at} of {name!r}")
     if v.ndim != 3:
         raise InputError(f"grid values must be a 3-D array, got shape {v.shape}")
     if min(v.shape) < 2:
@@ -187,10 +222,10 @@ def grid_from_array(values3d, origin=(0.0, 0.0, 0.0), spacing=(1.0, 1.0, 1.0), n
                      origin=origin, spacing=spacing, name=name)
 
 
-def points_values(points, values):
+def points_values(points, values, name="data"):
     """Points (N, 3) and values (N,) as float arrays; one-line InputError on bad shapes."""
-    p = _real_array(points, "points")
-    f = _real_array(values, "values")
+    p = _real_array(points, "points", lambda at: f"point {at[0]} (coordinate {at[-1]}) of {name!r}")
+    f = _real_array(values, "values", lambda at: f"point {at[0]} of {name!r}")
     if p.ndim != 2 or p.shape[1] != 3:
         raise InputError(f"points must have shape (N, 3), got {p.shape}")
     if f.shape != (p.shape[0],):
@@ -205,7 +240,7 @@ def scattered(points, values, name="data") -> PointData:
     point sets that do not span 3-D space (all coplanar), each with a one-line
     :class:`~trivsel.exceptions.InputError` naming the bad value.
     """
-    p, f = points_values(points, values)
+    p, f = points_values(points, values, name)
     if p.shape[0] < 5:
         raise InputError(f"too few points: need at least 5 for a 3-D triangulation, got {p.shape[0]}")
     if not np.all(np.isfinite(p)):

@@ -33,14 +33,20 @@ pynrrd's array (with the non-spatial axis last).
 In-memory data (numpy arrays, pyvista datasets, nibabel images) take the same code paths
 (:func:`from_object`).
 
+Every reader refuses, in one line, integers that float64 cannot hold exactly (beyond 2^53), a
+non-finite origin or spacing (also where VTK's readers would read ``nan`` as 0) and coordinates
+that overflow, and checks the memory a file needs from its header before reading its data.
+
 Outputs (:func:`write_outputs`) go first to a temporary folder inside the target
 and are moved into place only when all of them are complete, so a failure never
 leaves partial or corrupt files; a manifest lists what trivsel wrote, so a new run
-replaces exactly the files of the previous one and never touches an input.
+replaces exactly the files of the previous one and never touches an input or a file
+that no trivsel run wrote.
 """
 
 from __future__ import annotations
 
+import contextlib
 import inspect
 import json
 import logging
@@ -52,8 +58,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import PointData, grid_from_array, scattered
+from ..data import PointData, check_exact_integers, grid_from_array, plain_tuple, scattered
 from ..exceptions import InputError, one_line
+from ..resources import GRID_BYTES_PER_POINT, check_memory
 
 __all__ = ["READERS", "MANIFEST", "TMP_PREFIX", "load", "from_object", "save_npz", "check_output_dir",
            "remove_temporaries", "umask", "write_outputs", "snapshot_to_vtk", "snapshot_to_pyvista", "tetra_grid",
@@ -84,6 +91,8 @@ def _read_csv(p, array):
     """Scattered points from columns ``x, y, z`` and a value column (``value`` or ``array``)."""
     import pandas as pd
 
+    rows = _count_lines(p)
+    check_memory(rows * (5 * 8 + GRID_BYTES_PER_POINT), f"reading {str(p)!r} ({rows} lines)")
     try:
         df = pd.read_csv(p)
     except Exception as exc:  # pandas raises many types
@@ -97,11 +106,57 @@ def _read_csv(p, array):
         array = cols["value"]
     col = _pick_array(others, array, p)
     try:
-        pts = df[[cols["x"], cols["y"], cols["z"]]].to_numpy(float)
-        vals = df[col].to_numpy(float)
+        # integers as read (scattered() refuses those float64 cannot hold), anything else as float
+        pts = np.stack([_number_column(df[cols[c]], p) for c in "xyz"], axis=1)
+        vals = _number_column(df[col], p)
     except ValueError as exc:
         raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
     return scattered(pts, vals, name=p.stem)
+
+
+def _number_column(column, p):
+    """A CSV column as numbers: integers as pandas read them (checked later), integers beyond
+    64 bits (kept as Python ints) refused, anything else converted to float (text: ValueError)."""
+    a = column.to_numpy()
+    if a.dtype.kind in "iuf":
+        return a
+    check_exact_integers(a, lambda at: f"point {at[0]} of {_stem(p)!r}")
+    return a.astype(float)
+
+
+def _count_lines(p) -> int:
+    """Lines in a text file, counted in 16 MiB reads (nothing parsed, nothing kept)."""
+    n = 0
+    with open(p, "rb") as fh:
+        while chunk := fh.read(1 << 24):
+            n += chunk.count(b"\n")
+    return n
+
+
+def _npz_member_shapes(p):
+    """``{name: (shape, dtype)}`` of the arrays in an ``.npz`` from their headers (nothing read)."""
+    import zipfile
+
+    out = {}
+    with zipfile.ZipFile(p) as z:
+        for info in z.infolist():
+            if not info.filename.endswith(".npy"):
+                continue
+            with z.open(info) as fh:
+                try:
+                    out[info.filename[:-4]] = npy_header(fh)
+                except Exception:  # a damaged member: np.load says what is wrong
+                    continue
+    return out
+
+
+def npy_header(fh):
+    """``(shape, dtype)`` from the header of the ``.npy`` data at the file object's position
+    (nothing else is read)."""
+    version = np.lib.format.read_magic(fh)
+    read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+    shape, _, dtype = read(fh)
+    return tuple(shape), np.dtype(dtype)
 
 
 def _read_npz(p, array):
@@ -111,6 +166,17 @@ def _read_npz(p, array):
 
     if not zipfile.is_zipfile(p):
         raise InputError(f"cannot read {str(p)!r}: not a NumPy .npz archive (a zip of .npy arrays)")
+    try:
+        members = _npz_member_shapes(p)
+    except Exception as exc:  # a damaged archive
+        raise InputError(f"cannot read {str(p)!r}: {one_line(exc)}") from None
+    key = array or "values"
+    if key in members:  # the memory of the arrays and of the grid or points built from them, before reading
+        count = float(np.prod(members[key][0]))
+        stored = sum(float(np.prod(shape)) * dt.itemsize for name, (shape, dt) in members.items()
+                     if name in (key, "points"))
+        check_memory(stored + GRID_BYTES_PER_POINT * count,
+                             f"reading {str(p)!r} ({key!r} of shape {members[key][0]})")
     try:
         with np.load(p) as z:  # allow_pickle=False: object arrays are refused, never unpickled
             key = array or "values"
@@ -168,6 +234,9 @@ def _read_vtk_dataset(p, what=None):
     vtkOutputWindow.SetInstance(log)
     vtkLogger.SetStderrVerbosity(vtkLogger.VERBOSITY_OFF)
     try:
+        n = _vtk_points_in_header(reader)
+        if n:
+            check_memory(GRID_BYTES_PER_POINT * n, f"reading {str(p)!r} ({n} points)")
         reader.Update()
         ds = reader.GetOutputDataObject(0)  # asks the pipeline again when the read failed
     finally:
@@ -193,10 +262,29 @@ def _vtk_point_arrays(ds):
     return arrays
 
 
+def _vtk_points_in_header(reader) -> int:
+    """The number of points an XML VTK file declares (its image extent, or its pieces'
+    ``NumberOfPoints``), read from the header alone; 0 when the reader cannot tell."""
+    from vtkmodules.vtkCommonExecutionModel import vtkStreamingDemandDrivenPipeline as sddp
+
+    if not hasattr(reader, "UpdateInformation") or not type(reader).__name__.startswith("vtkXML"):
+        return 0
+    reader.UpdateInformation()
+    info = reader.GetOutputInformation(0)
+    if info is not None and info.Has(sddp.WHOLE_EXTENT()):
+        e = info.Get(sddp.WHOLE_EXTENT())
+        return int(np.prod([max(e[2 * i + 1] - e[2 * i] + 1, 0) for i in range(3)], dtype=np.int64))
+    if hasattr(reader, "GetNumberOfPoints"):
+        return int(reader.GetNumberOfPoints())
+    return 0
+
+
 def _read_vtk(p, array):
     """VTK files, read with VTK's readers: image data is a grid (exact integer path, origin
     and spacing kept); any other dataset gives scattered points."""
     ds, arrays = _read_vtk_dataset(p)
+    if ds.IsA("vtkImageData"):
+        _check_vtk_header_geometry(p)
     return _vtk_data(ds, arrays, _pick_array(arrays.keys(), array, p), p, p.stem)
 
 
@@ -223,6 +311,36 @@ def _vtk_data(ds, arrays, col, p, name) -> PointData:
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
     return scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
+
+
+def _check_vtk_header_geometry(p):
+    """Refuse an image whose header gives a non-numeric or non-finite origin or spacing: VTK's
+    readers take a ``nan`` there as 0 (XML) or stop parsing, without a word.  Reads the first
+    64 KiB, where the XML ``<ImageData>`` tag or the legacy ``ORIGIN``/``SPACING`` lines are."""
+    import re
+
+    with open(p, "rb") as fh:
+        head = fh.read(1 << 16).decode("latin-1")
+    found = {}
+    tag = re.search(r"<ImageData\b([^>]*)>", head)
+    if tag:
+        for key in ("Origin", "Spacing"):
+            m = re.search(rf'\b{key}\s*=\s*"([^"]*)"', tag.group(1))
+            if m:
+                found[key.lower()] = m.group(1).split()
+    else:
+        for key, name in (("ORIGIN", "origin"), ("SPACING", "spacing"), ("ASPECT_RATIO", "spacing")):
+            m = re.search(rf"^{key}[ \t]+([^\n]*)$", head, re.MULTILINE)
+            if m:
+                found[name] = m.group(1).split()
+    for name, words in found.items():
+        try:
+            ok = len(words) == 3 and all(np.isfinite(float(w)) for w in words)
+        except ValueError:
+            ok = False
+        if not ok:
+            raise InputError(f"grid {_stem(p)!r}: the {name} must be 3 finite numbers, got "
+                             f"({', '.join(words)}) in {str(p)!r}")
 
 
 def _vtk_points(ds):
@@ -304,6 +422,8 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     if m.shape != (3, 3) or t.shape != (3,) or not (np.all(np.isfinite(m)) and np.all(np.isfinite(t))):
         raise InputError(f"{str(p)!r}: the {what} must be a finite 3 x 3 matrix and offset, got {text} "
                          f"and {np.array2string(t, separator=', ')}")
+    if np.any(np.abs(m).max(axis=0) == 0):  # before the alignment test, which it would fail confusingly
+        raise InputError(f"{str(p)!r} has a zero voxel size (its {what}: {text})")
     axis = np.argmax(np.abs(m), axis=0)  # the world axis each voxel axis runs along
     if sorted(axis.tolist()) != [0, 1, 2]:
         raise InputError(f"{str(p)!r} is not axis-aligned (oblique or singular {what} {text}); "
@@ -313,8 +433,6 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     off = m.copy()
     off[np.arange(3), order] = 0.0
     size = np.abs(m).max(axis=0)  # each voxel axis's step length
-    if np.any(size == 0):
-        raise InputError(f"{str(p)!r} has a zero voxel size (its {what}: {text})")
     if np.any(np.abs(off).max(axis=0) > AXIS_TOLERANCE * size):
         raise InputError(f"{str(p)!r} is oblique (off-axis terms in its {what} {text}); only axis-aligned "
                          "images (flipped or permuted axes allowed) are supported: resample it first")
@@ -334,6 +452,19 @@ def _voxel_grid(p, voxels, matrix, offset, what, name, meta=None) -> PointData:
     return data
 
 
+@contextlib.contextmanager
+def _quiet_nibabel():
+    """nibabel's header fixes (a zero ``pixdim`` set to 1) kept off stderr: trivsel checks the
+    header as stored and refuses what it cannot use, in one line."""
+    from nibabel.imageglobals import logger
+
+    disabled, logger.disabled = logger.disabled, True
+    try:
+        yield
+    finally:
+        logger.disabled = disabled
+
+
 def open_nifti(p, array, volume, *, keep_file_open=False):
     """``(img, shape, dtype, k, affine)`` of a NIfTI image, its header checked: a NIfTI-1/-2
     image of a real voxel type, volume ``k`` of a 4-D one, and its index-to-world affine (the
@@ -342,17 +473,23 @@ def open_nifti(p, array, volume, *, keep_file_open=False):
     import nibabel as nib
 
     _no_array(p, array)
+    from nibabel.openers import ImageOpener
+
     try:
-        img = nib.load(str(p), keep_file_open=keep_file_open)
-        img.shape, img.get_data_dtype()  # a damaged header fails here, inside the try
+        with _quiet_nibabel():
+            img = nib.load(str(p), keep_file_open=keep_file_open)
+            shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
+            with ImageOpener(str(p)) as fh:  # the header as stored, before those fixes
+                stored = type(hdr).from_fileobj(fh, check=False)
     except Exception as exc:  # nibabel raises many types for damaged files
         raise InputError(f"cannot read {str(p)!r} as NIfTI: {one_line(exc)}") from None
-    return (img, *_nifti_header(p, img, volume))
+    return (img, *_nifti_header(p, img, volume, stored))
 
 
-def _nifti_header(p, img, volume):
+def _nifti_header(p, img, volume, stored=None):
     """``(shape, dtype, k, affine)`` of a nibabel image, checked as :func:`open_nifti` describes
-    (``p`` names it in messages)."""
+    (``p`` names it in messages; ``stored``: its header as stored in a file, before nibabel's
+    fixes, else the image's own)."""
     import nibabel as nib
 
     if not isinstance(img, (nib.Nifti1Image, nib.Nifti2Image)):
@@ -360,10 +497,16 @@ def _nifti_header(p, img, volume):
     shape, dtype, hdr = img.shape, img.get_data_dtype(), img.header
     _check_voxel_dtype(p, dtype)
     k = _volume_index(p, shape, volume)
+    stored = hdr if stored is None else stored
+    pixdim = np.asarray(stored["pixdim"][1:4], float)
+    if int(stored["sform_code"]) == 0 and not (np.all(np.isfinite(pixdim)) and np.all(pixdim != 0)):
+        # the qform and method 1 scale by pixdim; nibabel would silently take 1 for a 0
+        raise InputError(f"{str(p)!r} has a zero or missing voxel size (pixdim[1:4] = {plain_tuple(pixdim)}) and "
+                         "no sform to place it otherwise; set the voxel sizes in its header")
     if int(hdr["sform_code"]) == 0 and int(hdr["qform_code"]) == 0:
         # no orientation in the file: the standard's method 1 (voxel sizes, origin at 0), not
         # nibabel's fall-back affine (which flips x and centres the image)
-        affine = np.diag([*np.asarray(hdr["pixdim"][1:4], float), 1.0])
+        affine = np.diag([*pixdim, 1.0])
     else:
         affine = np.asarray(img.affine, float)
     return shape, dtype, k, affine
@@ -378,11 +521,16 @@ def _read_nifti(p, array, *, volume=None):
 
 def _nifti_grid(p, img, shape, k, affine, volume, name) -> PointData:
     """The voxels of volume ``k`` of a checked NIfTI image (:func:`_nifti_header`) as grid data."""
-    from ..resources import check_memory
-
-    check_memory(8.0 * float(np.prod(shape)), f"reading {str(p)!r} (shape {tuple(shape)})")
+    dtype = img.get_data_dtype()
+    n3 = float(np.prod(shape[:3]))
+    check_memory(8.0 * float(np.prod(shape)) + (8 + GRID_BYTES_PER_POINT) * n3,
+                 f"reading {str(p)!r} (shape {tuple(shape)})")
     try:
+        if dtype.kind in "iu" and dtype.itemsize > 4:  # as stored: float64 would round beyond 2^53
+            check_exact_integers(img.dataobj.get_unscaled(), lambda at: f"voxel {at} of {str(p)!r}")
         values = np.asarray(img.get_fdata(dtype=np.float64))
+    except InputError:
+        raise
     except Exception as exc:  # truncated or corrupt data
         raise InputError(f"cannot read the voxels of {str(p)!r}: {one_line(exc)}") from None
     values = values.reshape(tuple(shape[:3]) + (-1,))[..., k]
@@ -433,6 +581,17 @@ def _read_nrrd(p, array, *, volume=None):
     import nrrd
 
     _no_array(p, array)
+    try:
+        header = nrrd.read_header(str(p))
+        sizes = [int(n) for n in header["sizes"]]
+        itemsize = np.dtype(nrrd.reader._determine_datatype(header)).itemsize
+    except Exception as exc:  # pynrrd raises many types: a bad header, truncated data, a missing data file
+        raise InputError(f"cannot read {str(p)!r} as NRRD: {one_line(exc)}") from None
+    count = float(np.prod(sizes))
+    n3 = float(np.prod(sorted(sizes, reverse=True)[:3]))  # at most the largest three axes are spatial
+    # the samples (twice: a compressed stream is decoded into a buffer first), then the grid of one volume
+    check_memory(2.0 * itemsize * count + (8 + GRID_BYTES_PER_POINT) * n3,
+                         f"reading {str(p)!r} (sizes {tuple(sizes)})")
     try:
         values, header = nrrd.read(str(p))
     except Exception as exc:  # pynrrd raises many types: a bad header, truncated data, a missing data file
@@ -635,6 +794,7 @@ def tetra_grid(points, tets, point_data, field_data=None):
     ``field_data`` map names to arrays (copied, in their own types), in order; the point array
     ``value``, if any, is the active scalars (as pyvista makes the first array it is given).
     """
+    import_vtk_writer()
     from vtkmodules.util.numpy_support import numpy_to_vtk
     from vtkmodules.vtkCommonCore import vtkPoints
     from vtkmodules.vtkCommonDataModel import VTK_TETRA, vtkCellArray, vtkUnstructuredGrid
@@ -671,16 +831,28 @@ def snapshot_to_pyvista(result, snapshot):
 
 def write_vtu(grid, path):
     """Write a ``vtkUnstructuredGrid`` as a ``.vtu`` file: binary, zlib-compressed (as
-    pyvista's ``save`` writes it).  Raises OSError if VTK's writer fails."""
+    pyvista's ``save`` writes it).
+
+    VTK builds the file's text in memory (binary data is base64 text in it) and Python writes
+    it: VTK's own file output crashes the process when the disk fills up, while Python's
+    raises OSError (``ENOSPC``), which a caller can report and clean up after.  Raises OSError
+    if VTK's writer fails.
+    """
+    import_vtk_writer()
     from vtkmodules.vtkIOXML import vtkXMLUnstructuredGridWriter
 
     writer = vtkXMLUnstructuredGridWriter()
-    writer.SetFileName(str(path))
+    writer.SetWriteToOutputString(True)
     writer.SetInputData(grid)
     writer.SetDataModeToBinary()
     writer.SetCompressorTypeToZLib()
-    if writer.Write() != 1 or not Path(path).is_file():
+    if writer.Write() != 1:
         raise OSError(f"VTK could not write {str(path)!r}")
+    text = writer.GetOutputString()
+    step = 1 << 24
+    with open(path, "wb") as fh:
+        for i in range(0, len(text), step):  # in slices: one encoded copy of the whole text is not needed
+            fh.write(text[i:i + step].encode("ascii"))
 
 
 def _jsonable(obj):
@@ -716,9 +888,58 @@ def umask() -> int:
     return mask
 
 
-def check_output_dir(out_dir, inputs=()):
-    """Check an output folder before any work: it is not a file, it can be created and
-    written, and it does not contain an input file (whose name a result could take).
+def umask_mode(mode: int = 0o666) -> int:
+    """``mode`` less the umask: the permissions :func:`open` or :func:`os.mkdir` would give.
+    Temporary files and folders (:mod:`tempfile`) are made private (0600, 0700); an output
+    moved into place from one gets this mode first, so colleagues read it as any other file."""
+    return mode & ~umask()
+
+
+@contextlib.contextmanager
+def signals_deferred(*, deliver: bool = True):
+    """SIGINT and SIGTERM held back while the block runs and delivered when it ends, so a
+    step that must not stop half-way (an import of VTK's extension modules, the moves that
+    put a run's outputs in place) completes first.  Only the main thread sets handlers.
+    ``deliver=False``: a signal that came is dropped (the step it waited for finished the
+    run's work, so the run ends normally a moment later).
+
+    The handlers are replaced by ones that only note the signal (blocking the signal with
+    ``pthread_sigmask`` is not enough: numpy's BLAS threads would still take it).
+    """
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending = []
+    previous = {s: signal.signal(s, lambda signum, frame: pending.append(signum))
+                for s in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, signal.SIG_DFL if handler is None else handler)  # None: set outside Python
+        if pending and deliver:
+            signal.raise_signal(pending[0])  # to the handler the caller had
+
+
+def import_vtk_writer():
+    """Import the VTK modules that build and write the meshes, with signals deferred: an
+    interrupt that lands inside the import of an extension module can leave it half set up,
+    and the interpreter then crashes.  Cheap once imported."""
+    with signals_deferred():
+        import vtkmodules.util.numpy_support  # noqa: F401
+        import vtkmodules.vtkCommonCore  # noqa: F401
+        import vtkmodules.vtkCommonDataModel  # noqa: F401
+        import vtkmodules.vtkIOXML  # noqa: F401
+
+
+def check_output_dir(out_dir, inputs=(), files=()):
+    """Check an output folder before any work: it is named, it is not a file, it can be
+    created and written, it does not contain an input file (whose name a result could take),
+    and none of ``files`` (the names the run will write) is there unless a trivsel run wrote
+    it (:data:`MANIFEST`).
 
     Raises :class:`~trivsel.exceptions.InputError` with one line naming the problem.
     Returns the folder as a resolved :class:`~pathlib.Path`.
@@ -737,12 +958,119 @@ def check_output_dir(out_dir, inputs=()):
         if ip in resolved.parents:  # a folder input, such as a Zarr store
             raise InputError(f"the output folder {str(out)!r} is inside the input {str(inp)!r}: "
                              "choose another --out (trivsel never writes into its input)")
-    probe = resolved
+    check_writable(resolved, f"the output folder {str(out)!r}")
+    _check_foreign_files(resolved, files)
+    return resolved
+
+
+def check_writable(path, what):
+    """One-line InputError unless ``path`` can be created: its nearest existing ancestor is a
+    folder this process can write into."""
+    probe = Path(path)
     while not probe.exists():
         probe = probe.parent
     if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
-        raise InputError(f"cannot write the output folder {str(out)!r}: {str(probe)!r} is not writable")
-    return resolved
+        raise InputError(f"cannot write {what}: {str(probe)!r} is not writable")
+
+
+def temporary_prefix(name: str) -> str:
+    """The prefix of a temporary folder for output ``name``, naming this host and process, so
+    that a later run can tell a dead run's leftovers (:func:`remove_dead_temporaries`) from a
+    live one's: ``.NAME.trivsel-tmp-HOST-PID-``."""
+    import socket
+
+    return f".{name}{TMP_PREFIX}{socket.gethostname().replace('-', '_')}-{os.getpid()}-"
+
+
+def remove_dead_temporaries(folder) -> None:
+    """Remove the temporary folders in ``folder`` (named by :func:`temporary_prefix`) of runs on
+    this host whose process has ended: what a killed run could not clean up.  A live run's, or
+    another host's on a shared file system, are left alone."""
+    import socket
+
+    host = socket.gethostname().replace("-", "_")
+    for p in Path(folder).glob(f".*{TMP_PREFIX}*"):
+        parts = p.name.split(TMP_PREFIX, 1)[1].rsplit("-", 2)
+        if len(parts) != 3 or parts[0] != host or not parts[1].isdigit() or not p.is_dir():
+            continue
+        try:
+            os.kill(int(parts[1]), 0)
+            continue  # the run is alive
+        except ProcessLookupError:
+            pass
+        except PermissionError:  # alive, another user's
+            continue
+        remove_tree(p)
+
+
+def remove_tree(path) -> None:
+    """Remove the folder ``path`` for good, with signals deferred: files that a writer's
+    background threads still add while it goes (an interrupted Zarr write) are removed too."""
+    import time
+
+    with signals_deferred():
+        for _ in range(100):
+            shutil.rmtree(path, ignore_errors=True)
+            if not os.path.lexists(path):
+                return
+            time.sleep(0.05)
+
+
+def rename_no_replace(src, dst) -> None:
+    """Rename ``src`` to ``dst``, failing with FileExistsError if ``dst`` exists, even if it
+    appeared a moment ago (Linux's ``renameat2`` with ``RENAME_NOREPLACE``; elsewhere, or on a
+    file system without it, a check just before :func:`os.rename`)."""
+    import ctypes
+    import errno
+
+    try:
+        libc = ctypes.CDLL(None, use_errno=True)
+        renameat2 = libc.renameat2
+    except (OSError, AttributeError):
+        renameat2 = None
+    if renameat2 is not None:
+        at_fdcwd, noreplace = -100, 1
+        if renameat2(at_fdcwd, os.fsencode(src), at_fdcwd, os.fsencode(dst), noreplace) == 0:
+            return
+        err = ctypes.get_errno()
+        if err not in (errno.EINVAL, errno.ENOSYS, errno.ENOTSUP):
+            raise OSError(err, os.strerror(err), str(dst))
+    if os.path.lexists(dst):
+        raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), str(dst))
+    os.rename(src, dst)
+
+
+def _check_foreign_files(out, files):
+    """Refuse when one of ``files`` exists in ``out`` and the folder's manifest does not list
+    it: a file a person or another program put there is never replaced."""
+    ours = _previous_files(out)
+    for name in files:
+        f = out / name
+        if (f.exists() or f.is_symlink()) and name not in ours:
+            raise InputError(f"{str(f)!r} exists and no trivsel run wrote it (it is not in {MANIFEST}): "
+                             "move it away or choose another --out")
+
+
+@contextlib.contextmanager
+def _folder_lock(out):
+    """An exclusive lock on the folder ``out`` (``flock`` on the folder itself: nothing is
+    left behind, and the lock ends with the process).  A second run writing into the same
+    folder waits here, so runs never remove each other's temporary folders or mix their files."""
+    import fcntl
+
+    fd = os.open(out, os.O_RDONLY | getattr(os, "O_DIRECTORY", 0))
+    log = logging.getLogger("trivsel")
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            log.warning("waiting for another trivsel run writing into %s", out)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        except OSError as exc:  # a file system without locks (some network mounts): write unlocked
+            log.warning("cannot lock %s (%s); concurrent runs into it are not serialised", out, one_line(exc))
+        yield
+    finally:
+        os.close(fd)  # releases the lock
 
 
 def remove_temporaries(folder):
@@ -811,47 +1139,93 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
     * files that an earlier trivsel run wrote there (listed in its manifest,
       :data:`MANIFEST`) and that this run does not produce are removed, so the
       folder never mixes two runs; other files in the folder are left alone;
+    * a file in ``out_dir`` that this run would write and that no trivsel run wrote
+      (it is not in the manifest) is refused, naming it;
+    * runs into one folder are serialised by a lock on the folder while they write;
+    * the files get the usual permissions (``0666`` less the umask);
     * the temporary folder is removed on any failure or interruption, and leftovers
-      of a killed run are removed by the next one.
+      of a killed run are removed by the next one; a failure to write (a full disk)
+      raises :class:`~trivsel.exceptions.InputError` with one line, and a folder this
+      run created is removed again.
     """
     out = check_output_dir(out_dir, inputs)
-    out.mkdir(parents=True, exist_ok=True)
-    remove_temporaries(out)
-    tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=out))
+    import_vtk_writer()
+    created = not out.exists()
     try:
-        names = ["errors.csv"]
-        write_csv_rows(result.error_rows(), tmp / "errors.csv")
-        for s in result.snapshots:
-            name = f"mesh_{fraction_label(s.fraction)}.vtu"
-            write_vtu(snapshot_to_vtk(result, s), tmp / name)
-            names.append(name)
-        info = {
-            "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
-                     "shape": result.data.shape, "origin": result.data.origin, "spacing": result.data.spacing,
-                     **result.data.meta},
-            "options": result.options,
-            "timings": result.timings,
-            "stats": result.stats,
-            "snapshots": [{"fraction": s.fraction, "n_selected": s.n_selected, "errors": s.errors,
-                           "seconds": s.seconds, "n_tets": int(len(s.tets)), "flips": s.flips}
-                          for s in result.snapshots],
-            "selected": result.selected,
-            **(extra or {}),
-        }
-        with open(tmp / "result.json", "w") as fh:
-            json.dump(_jsonable(info), fh, indent=1)
-        names.append("result.json")
-        with open(tmp / MANIFEST, "w") as fh:
-            json.dump({"files": names}, fh)
-        previous = _previous_files(out)
-        for name in names:
-            os.replace(tmp / name, out / name)
-        for name in sorted(previous - set(names)):
-            (out / name).unlink(missing_ok=True)
-        os.replace(tmp / MANIFEST, out / MANIFEST)
-    finally:
-        shutil.rmtree(tmp, ignore_errors=True)
+        out.mkdir(parents=True, exist_ok=True)
+        with _folder_lock(out):
+            remove_temporaries(out)
+            tmp = Path(tempfile.mkdtemp(prefix=TMP_PREFIX, dir=out))
+            committed = False
+            try:
+                _write_into(result, tmp, extra)
+                names = json.loads((tmp / MANIFEST).read_text())["files"]
+                _check_foreign_files(out, names)
+                # the moves complete, or none starts; once they are done the results are complete,
+                # and a signal then must not report "the folder is as it was"
+                with signals_deferred(deliver=False):
+                    _commit(tmp, out, names)
+                    committed = True
+            finally:
+                with signals_deferred(deliver=not committed):
+                    shutil.rmtree(tmp, ignore_errors=True)
+    except BaseException as exc:
+        if created:
+            with contextlib.suppress(OSError):
+                out.rmdir()  # only if still empty
+        if not isinstance(exc, OSError):
+            raise
+        # a full disk, a folder made read-only meanwhile
+        raise InputError(f"cannot write the outputs into {str(out)!r}: {one_line(exc)}; "
+                         "the output folder is as it was before this run") from None
     return out
+
+
+def _write_into(result, tmp, extra):
+    """All outputs of ``result`` and their manifest, written into the folder ``tmp``."""
+    mode = umask_mode()
+    names = ["errors.csv"]
+    write_csv_rows(result.error_rows(), tmp / "errors.csv")
+    for s in result.snapshots:
+        name = f"mesh_{fraction_label(s.fraction)}.vtu"
+        write_vtu(snapshot_to_vtk(result, s), tmp / name)
+        names.append(name)
+    info = {
+        "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
+                 "shape": result.data.shape, "origin": result.data.origin, "spacing": result.data.spacing,
+                 **result.data.meta},
+        "options": result.options,
+        "timings": result.timings,
+        "stats": result.stats,
+        "snapshots": [{"fraction": s.fraction, "n_selected": s.n_selected, "errors": s.errors,
+                       "seconds": s.seconds, "n_tets": int(len(s.tets)), "flips": s.flips}
+                      for s in result.snapshots],
+        "selected": result.selected,
+        **(extra or {}),
+    }
+    with open(tmp / "result.json", "w") as fh:
+        json.dump(_jsonable(info), fh, indent=1)
+    names.append("result.json")
+    with open(tmp / MANIFEST, "w") as fh:
+        json.dump({"files": names}, fh)
+    for name in names + [MANIFEST]:
+        os.chmod(tmp / name, mode)
+
+
+def _commit(tmp, out, names):
+    """Move the complete outputs from ``tmp`` into ``out`` and remove the previous run's other
+    files.  The manifest first lists both runs' files, so that even a run killed here (SIGKILL,
+    power loss) leaves a folder whose every trivsel file is listed and replaced by the next run."""
+    previous = _previous_files(out)
+    both = tmp / (MANIFEST + ".both")
+    both.write_text(json.dumps({"files": sorted(previous | set(names))}))
+    os.chmod(both, umask_mode())
+    os.replace(both, out / MANIFEST)
+    for name in names:
+        os.replace(tmp / name, out / name)
+    for name in sorted(previous - set(names)):
+        (out / name).unlink(missing_ok=True)
+    os.replace(tmp / MANIFEST, out / MANIFEST)
 
 
 def _previous_files(out):

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import InputError
-from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, tetra_grid, umask, write_vtu
+from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, tetra_grid, umask_mode, write_vtu
 
 __all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
 
@@ -34,8 +34,9 @@ _VTK_TYPES = {("i", 1): "Int8", ("u", 1): "UInt8", ("i", 2): "Int16", ("u", 2): 
 
 def _atomic_write(path, write, overwrite):
     """``write(tmp)`` into a temporary file beside ``path`` (same suffix: VTK picks its
-    writer by it), then :func:`os.replace` it onto ``path``.  Refuses an existing ``path``
-    unless ``overwrite``; removes the temporary file on any failure."""
+    writer by it), then :func:`os.replace` it onto ``path`` with the usual permissions (0666
+    less the umask).  Refuses an existing ``path`` unless ``overwrite``; removes the
+    temporary file on any failure."""
     path = Path(path)
     if not overwrite and (path.exists() or path.is_symlink()):
         raise InputError(f"{str(path)!r} exists; pass overwrite=True to replace it")
@@ -45,7 +46,7 @@ def _atomic_write(path, write, overwrite):
     os.close(fd)
     try:
         write(tmp)
-        os.chmod(tmp, 0o666 & ~umask())  # mkstemp's 0600 would hide the file from the user's group
+        os.chmod(tmp, umask_mode())  # mkstemp's file is private (0600): the usual permissions instead
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):

@@ -41,6 +41,7 @@ Point order: C order over ``(i, j, k)`` (``i`` slowest), as
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import numbers
 import os
@@ -52,15 +53,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import PointData
+from ..data import PointData, check_exact_integers, check_grid_geometry
 from ..exceptions import InputError, one_line
 
 __all__ = ["Volume", "RegionData", "open_volume", "check_region", "convert"]
 
 log = logging.getLogger("trivsel")
-
-#: Largest integer magnitude every float64 holds exactly; larger integer samples are refused.
-EXACT_INTEGER = 2**53
 
 
 def check_region(region, shape) -> tuple:
@@ -144,8 +142,6 @@ class Volume:
 
     def __init__(self, *, shape, origin, spacing, name, block, dtype, source, by_region=True, coords=None,
                  file_ids=None, slab_axis=0, meta=None):
-        from ..data import check_grid_geometry
-
         self.shape = tuple(int(s) for s in shape)
         self.origin, self.spacing = check_grid_geometry(self.shape, origin, spacing)
         self.name = str(name)
@@ -228,12 +224,7 @@ def _exact_float(block, region, source):
     if block.dtype.kind not in "iuf":
         raise InputError(f"{source!r} holds values of type {block.dtype}: need real numbers")
     start = np.array([a for a, _ in region])
-    if block.dtype.kind in "iu" and block.dtype.itemsize > 4 and block.size:
-        big = (block > EXACT_INTEGER) | ((block < -EXACT_INTEGER) if block.dtype.kind == "i" else False)
-        if big.any():
-            at = np.argwhere(big)[0]
-            raise InputError(f"value {block[tuple(at)]} at grid index {tuple((at + start).tolist())} of {source!r} "
-                             "is beyond 2^53: float64 cannot hold it exactly")
+    check_exact_integers(block, lambda at: f"grid index {tuple((np.array(at) + start).tolist())} of {source!r}")
     values = block.astype(np.float64)  # a copy: never a view of a memory map
     if not np.all(np.isfinite(values)):
         at = np.argwhere(~np.isfinite(values))[0]
@@ -621,16 +612,30 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
     Raises
     ------
     InputError
-        One line: an existing ``out``, a name without ``.zarr``, bad ``chunks``, or what
-        :func:`open_volume` refuses.  Nothing is left behind on any failure or interruption:
-        the store is written into a temporary sibling folder and renamed at the end.
+        One line: an existing or empty ``out``, one inside the input, a name without ``.zarr``,
+        bad ``chunks``, a failure to write (a full disk), or what :func:`open_volume` refuses.
+        Nothing is left behind on any failure or interruption: the store is written into a
+        temporary sibling folder (named by host and process, so that the next run removes
+        what a killed one left) and renamed at the end, never over an ``out`` that appeared
+        meanwhile; it gets the usual permissions (0777 less the umask).
     """
-    out = Path(out)
+    from . import check_writable, remove_dead_temporaries, remove_tree, rename_no_replace, signals_deferred
+    from . import temporary_prefix, umask_mode
+
+    if not str(out).strip():
+        raise InputError(f"the output {str(out)!r} is empty: name a new *.zarr store")
+    out = Path(out).expanduser()
     if out.suffix.lower() != ".zarr":
         raise InputError(f"the output {str(out)!r} must be named *.zarr")
     if out.exists() or out.is_symlink():
         raise InputError(f"the output {str(out)!r} exists: trivsel convert never overwrites; remove it or choose "
                          "another name")
+    if not isinstance(source, Volume):
+        src = Path(source).expanduser().resolve()
+        if src == out.resolve() or src in out.resolve().parents:
+            raise InputError(f"the output {str(out)!r} is inside the input {str(source)!r}: trivsel never writes "
+                             "into its input; choose another place")
+    check_writable(out.parent, f"{str(out)!r}")
     chunk = _check_chunks(chunks)
     vol = source if isinstance(source, Volume) else open_volume(source, array=array, volume=volume)
     chunk = tuple(min(c, n) for c, n in zip(chunk, vol.shape))
@@ -640,9 +645,12 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
     slab = list(vol.shape)
     slab[axis] = chunk[axis]
     check_memory(24.0 * float(np.prod(slab)), f"converting {vol.source!r} in slabs of {tuple(slab)} points")
-    out.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out.name}.trivsel-tmp-", dir=out.parent))
+    created = [d for d in (out.parent, *out.parent.parents) if not d.exists()]
+    tmp = None
     try:
+        out.parent.mkdir(parents=True, exist_ok=True)
+        remove_dead_temporaries(out.parent)
+        tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), dir=out.parent))
         t0 = time.perf_counter()
         candidates = [vol.dtype] + ([np.dtype(np.float64)] if vol.dtype != np.float64 else [])
         for dtype in candidates:
@@ -651,14 +659,47 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
             log.info("%s: values not exactly representable as %s; writing float64", vol.source, dtype)
             shutil.rmtree(tmp)
             tmp.mkdir()
-        os.rename(tmp, out)  # fails if out appeared meanwhile: never replaces it
-    except OSError as exc:
-        raise InputError(f"cannot write {str(out)!r}: {one_line(exc)}") from None
-    finally:
-        if tmp.exists():
-            shutil.rmtree(tmp, ignore_errors=True)
+        os.chmod(tmp, umask_mode(0o777))  # mkdtemp's folder is private (0700): the usual permissions
+        rename_no_replace(tmp, out)  # never replaces an out that appeared meanwhile (even an empty folder)
+    except BaseException as exc:
+        if isinstance(exc, KeyboardInterrupt):
+            with signals_deferred():
+                _settle_zarr()
+        if tmp is not None:
+            remove_tree(tmp)
+        for d in created:  # the parent folders this run made, if still empty
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        if isinstance(exc, FileExistsError):
+            raise InputError(f"the output {str(out)!r} appeared while converting: trivsel convert never "
+                             "overwrites; the copy is discarded") from None
+        if isinstance(exc, OSError):
+            raise InputError(f"cannot write {str(out)!r}: {one_line(exc)}") from None
+        raise
     log.info("wrote %s (%s, %s) in %.1f s", out, vol.shape, dtype, time.perf_counter() - t0)
     return out
+
+
+def _settle_zarr(timeout=10.0):
+    """Let the write tasks that an interrupt abandoned in zarr's event loop (a thread of its own)
+    finish, so that no chunk is written after the store is removed, and no task is destroyed
+    pending when the process ends (asyncio would report each on stderr)."""
+    import asyncio
+
+    try:
+        from zarr.core.sync import loop  # zarr 3: [the loop] once one was started
+    except ImportError:  # zarr 2 writes synchronously
+        return
+    if loop[0] is None or not loop[0].is_running():
+        return
+
+    async def others():
+        tasks = [t for t in asyncio.all_tasks() if t is not asyncio.current_task()]
+        if tasks:
+            await asyncio.wait(tasks, timeout=timeout)
+
+    with contextlib.suppress(Exception):
+        asyncio.run_coroutine_threadsafe(others(), loop[0]).result(timeout + 1)
 
 
 def _write_zarr(vol, path, chunks, dtype):
