@@ -32,7 +32,7 @@ __all__ = ["fit_vertex_values", "fit_on_mesh", "normal_equations", "solve_normal
 #: Relative residual of the normal equations, ``|b - K v| / |b|``, at which the fit stops.
 RTOL = 1e-12
 #: Points per chunk when assembling the normal equations and the residuals.
-CHUNK = 1 << 18
+CHUNK = 1 << 16
 #: The pairs (a, b), a < b, of a point's 4 weights: the off-diagonal entries of its outer product.
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 
