@@ -137,3 +137,17 @@ def test_a_positive_weight_on_a_point_that_is_not_a_vertex_is_refused():
     verts[p, 3], w[p, 3] = p, 0.25
     with pytest.raises(ValueError, match="not a mesh vertex"):
         fit_vertex_values(verts, w, f, vertices)
+
+
+def test_the_benchmarks_former_fit_is_the_same_least_squares_solution():
+    from conftest import load_benchmark_script
+
+    old_fit = load_benchmark_script("bench_fit").old_fit
+    rng = np.random.default_rng(4)
+    verts, w, f, vertices = random_mesh(rng, N=250, m=35)
+    _, x = dense_fit(verts, w, f, vertices)
+    old, old_res = old_fit(verts, w, f, vertices)
+    new, new_res = fit_vertex_values(verts, w, f, vertices)
+    assert np.abs(old - x).max() <= 1e-10 * np.abs(x).max()
+    assert np.abs(new - old).max() <= 1e-10 * np.abs(old).max()
+    assert np.abs(new_res - old_res).max() <= 1e-10 * np.abs(f).max()
