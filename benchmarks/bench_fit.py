@@ -11,11 +11,11 @@ point weights are saved once; then each fit runs in a fresh process:
   points' weights, Jacobi-preconditioned conjugate gradients).
 
 Printed per crop and path: the fit's seconds, the process's peak resident memory and the part of
-it above the loaded inputs (``getrusage`` ``ru_maxrss`` after loading and after the fit), and,
+it above the loaded inputs (``VmHWM`` after loading and after the fit), and,
 for ``new`` against ``old``, the largest difference of the fitted values relative to their
 largest magnitude and the relative differences of E_RMS and E_inf (eqs. 19-20).  With ``--cli``
 also the whole process ``trivsel reduce crop.vti --method decimate --fractions 0.05 --values data
-fit`` with each fit (the old one patched in), its wall seconds and peak memory (``os.wait4``).
+fit`` with each fit (the old one patched in), its wall seconds and peak memory (``VmHWM``).
 
     python benchmarks/bench_fit.py                 # 65^3 and 129^3 (a few minutes: two decimations)
     python benchmarks/bench_fit.py --sizes 65 --cli
@@ -60,7 +60,13 @@ def old_fit(verts, weights, values, vertices):
     return fitted, f - A @ fitted
 
 
-def _maxrss_mb():
+def _peak_mb():
+    """This process's peak resident memory (``VmHWM``), in MB.  Not ``getrusage``'s
+    ``ru_maxrss``: a child started by ``fork`` and ``exec`` inherits its parent's peak there."""
+    with open("/proc/self/status") as fh:
+        for line in fh:
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) / 1024.0
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
@@ -97,12 +103,12 @@ def fit(which, inputs, out):
 
     z = np.load(inputs)
     verts, weights, values, vertices = z["verts"], z["weights"], z["values"], z["vertices"]
-    rss_inputs = _maxrss_mb()
+    rss_inputs = _peak_mb()
     t0 = time.perf_counter()
     fitted, residuals = (old_fit if which == "old" else fit_vertex_values)(verts, weights, values, vertices)
     seconds = time.perf_counter() - t0
     np.savez(out, fitted=fitted, residuals=residuals)
-    print(json.dumps({"seconds": seconds, "peak_mb": _maxrss_mb(), "inputs_mb": rss_inputs,
+    print(json.dumps({"seconds": seconds, "peak_mb": _peak_mb(), "inputs_mb": rss_inputs,
                       "N": int(values.shape[0]), "m": int(len(vertices))}))
 
 
@@ -113,23 +119,25 @@ def cli(which, vti, out):
 
     if which == "old":
         trivsel.fitting.fit_vertex_values = old_fit
-    sys.exit(main(["reduce", vti, "--method", "decimate", "--fractions", "0.05", "--values", "data", "fit",
-                   "--out", out]))
+    code = main(["reduce", vti, "--method", "decimate", "--fractions", "0.05", "--values", "data", "fit",
+                 "--out", out])
+    print(json.dumps({"peak_mb": _peak_mb()}))
+    sys.exit(code)
 
 
 def child(*args):
-    """Run this script with ``args`` in a fresh process; its stdout, wall seconds and peak memory (MB)."""
+    """Run this script with ``args`` in a fresh process; its stdout and wall seconds."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
         t0 = time.perf_counter()
         p = subprocess.Popen([sys.executable, __file__, *map(str, args)], stdout=out, stderr=err, env=env)
-        _, status, usage = os.wait4(p.pid, 0)  # reaped here, with its own resource usage
+        _, status = os.waitpid(p.pid, 0)
         seconds = time.perf_counter() - t0
         out.seek(0)
         err.seek(0)
         if os.waitstatus_to_exitcode(status):
             raise SystemExit(f"bench_fit: {' '.join(map(str, args))} failed:\n{err.read()[-2000:]}")
-        return out.read(), seconds, usage.ru_maxrss / 1024.0
+        return out.read(), seconds
 
 
 def errors(path, interior):
@@ -161,7 +169,7 @@ def main(argv=None):
             interior = np.load(inputs)["interior"]
             res = {}
             for which in ("old", "new"):
-                out, _, _ = child("--worker", "fit", which, inputs, tmp / f"{which}{size}.npz")
+                out, _ = child("--worker", "fit", which, inputs, tmp / f"{which}{size}.npz")
                 res[which] = json.loads(out.strip().splitlines()[-1])
                 res[which]["fitted"], res[which]["errors"] = errors(tmp / f"{which}{size}.npz", interior)
             o, n = res["old"], res["new"]
@@ -179,7 +187,8 @@ def main(argv=None):
                 vti = tmp / f"crop{size}.vti"
                 write_vti(crop(size), vti)
                 for which in ("old", "new"):
-                    _, seconds, peak = child("--worker", "cli", which, vti, tmp / f"out_{which}{size}")
+                    out, seconds = child("--worker", "cli", which, vti, tmp / f"out_{which}{size}")
+                    peak = json.loads(out.strip().splitlines()[-1])["peak_mb"]
                     cli_rows.append(f"| {size}^3 | {which} fit | {seconds:.1f} | {peak:.0f} |")
         if a.cli:
             print()
