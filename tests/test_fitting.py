@@ -151,3 +151,11 @@ def test_the_benchmarks_former_fit_is_the_same_least_squares_solution():
     assert np.abs(old - x).max() <= 1e-10 * np.abs(x).max()
     assert np.abs(new - old).max() <= 1e-10 * np.abs(old).max()
     assert np.abs(new_res - old_res).max() <= 1e-10 * np.abs(f).max()
+
+
+def test_a_zero_right_hand_side_gives_zero_at_once():
+    rng = np.random.default_rng(6)
+    verts, w, f, vertices = random_mesh(rng, N=60, m=12)
+    K, _ = normal_equations(verts, w, f, vertices)
+    x, its = solve_normal_equations(K, np.zeros(len(vertices)), f[vertices])
+    assert its == 0 and not x.any()

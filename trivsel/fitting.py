@@ -151,7 +151,7 @@ def solve_normal_equations(K, b, x0, *, rtol=RTOL, maxiter=None):
     d = K.diagonal()
     free = d > 0
     if not np.all(free):
-        # a column without weight: fix it at x0 and move its (zero) couplings to the right-hand side
+        # a column without weight: its row and column of K are zero; solve for the others
         K = K[free][:, free]
         b = b[free]
         x_free, its = solve_normal_equations(K, b, x[free], rtol=rtol, maxiter=maxiter)
@@ -159,6 +159,8 @@ def solve_normal_equations(K, b, x0, *, rtol=RTOL, maxiter=None):
         return x, its
     maxiter = max(1000, int(10 * np.sqrt(m))) if maxiter is None else int(maxiter)
     stop = rtol * _norm(b)
+    if stop == 0.0:
+        return np.zeros(m), 0  # b = 0: the solution of K x = 0
     dinv = 1.0 / d
     its = 0
     r = b - K @ x
