@@ -103,12 +103,12 @@ def fit(which, inputs, out):
 
     z = np.load(inputs)
     verts, weights, values, vertices = z["verts"], z["weights"], z["values"], z["vertices"]
-    rss_inputs = _peak_mb()
+    peak_inputs = _peak_mb()
     t0 = time.perf_counter()
     fitted, residuals = (old_fit if which == "old" else fit_vertex_values)(verts, weights, values, vertices)
     seconds = time.perf_counter() - t0
     np.savez(out, fitted=fitted, residuals=residuals)
-    print(json.dumps({"seconds": seconds, "peak_mb": _peak_mb(), "inputs_mb": rss_inputs,
+    print(json.dumps({"seconds": seconds, "peak_mb": _peak_mb(), "inputs_mb": peak_inputs,
                       "N": int(values.shape[0]), "m": int(len(vertices))}))
 
 
@@ -128,16 +128,12 @@ def cli(which, vti, out):
 def child(*args):
     """Run this script with ``args`` in a fresh process; its stdout and wall seconds."""
     env = dict(os.environ, PYTHONPATH=str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    with tempfile.TemporaryFile("w+") as out, tempfile.TemporaryFile("w+") as err:
-        t0 = time.perf_counter()
-        p = subprocess.Popen([sys.executable, __file__, *map(str, args)], stdout=out, stderr=err, env=env)
-        _, status = os.waitpid(p.pid, 0)
-        seconds = time.perf_counter() - t0
-        out.seek(0)
-        err.seek(0)
-        if os.waitstatus_to_exitcode(status):
-            raise SystemExit(f"bench_fit: {' '.join(map(str, args))} failed:\n{err.read()[-2000:]}")
-        return out.read(), seconds
+    t0 = time.perf_counter()
+    r = subprocess.run([sys.executable, __file__, *map(str, args)], capture_output=True, text=True, env=env)
+    seconds = time.perf_counter() - t0
+    if r.returncode:
+        raise SystemExit(f"bench_fit: {' '.join(map(str, args))} failed:\n{r.stderr[-2000:]}")
+    return r.stdout, seconds
 
 
 def errors(path, interior):
