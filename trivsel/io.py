@@ -47,7 +47,7 @@ from pathlib import Path
 import numpy as np
 
 from .data import PointData, grid_from_array, scattered
-from .exceptions import InputError, one_line
+from .exceptions import InputError, one_line, shown
 
 __all__ = ["READERS", "MANIFEST", "load", "save_npz", "check_output_dir", "write_outputs", "snapshot_to_vtk",
            "snapshot_to_pyvista", "tetra_grid", "write_vtu",
@@ -458,7 +458,7 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
     if volume is None:
         return reader(p, array)
     if isinstance(volume, bool) or not isinstance(volume, numbers.Integral):
-        raise InputError(f"volume must be an integer, got {volume!r}")
+        raise InputError(f"volume must be an integer, got {shown(volume)}")
     if "volume" not in inspect.signature(reader).parameters:
         raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
     return reader(p, array, volume=int(volume))
@@ -687,6 +687,7 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
             "options": result.options,
             "timings": result.timings,
             "stats": result.stats,
+            "notes": result.notes,
             "snapshots": [{"fraction": s.fraction, "n_selected": s.n_selected, "errors": s.errors,
                            "seconds": s.seconds, "n_tets": int(len(s.tets)), "flips": s.flips}
                           for s in result.snapshots],

@@ -23,10 +23,10 @@ import numpy as np
 
 from .data import PointData, sample_grid
 from .functions import resolve_function
-from .exceptions import InputError, check_threads, one_line
+from .exceptions import InputError, check_threads, one_line, shown
 from .methods import get_method
 from .norms import error_norms
-from .options import Options, option_fields
+from .options import Options, check_applicable, option_fields
 from .resources import interruptible
 from .selection import candidate_points, count_for_fraction, validate_fractions
 from .triangulation import (box_tetrahedra, boundary_cone, check_closed_surface, cube_corners, delaunay_tetrahedra,
@@ -84,6 +84,10 @@ class ReductionResult:
         ``errors``, and ``total``.
     stats : dict
         Insertion cases and flip counts at the end of the run.
+    notes : list of str
+        What the run could not do as asked: each requested fraction or count that it
+        did not reach (a tolerance stopped it first, or no point was left to insert or
+        remove), with the count it stopped at.  Also logged as warnings.
     """
 
     data: PointData
@@ -94,6 +98,7 @@ class ReductionResult:
     options: dict
     timings: dict
     stats: dict
+    notes: list = field(default_factory=list)
 
     def snapshot(self, fraction):
         """The snapshot for ``fraction`` (nearest match)."""
@@ -136,8 +141,12 @@ _STOP_PARAMS = """    data : PointData, int or str
     count : int, optional
         Stop at this number of points instead (also a snapshot).
     tol_rms, tol_inf : float, optional
-        Stop as soon as E_RMS (eq. 19) or E_inf (eq. 20) over all points is at or
-        below the tolerance (or when every candidate is inserted).
+        Error tolerances of E_RMS (eq. 19) and E_inf (eq. 20) over all points.  The
+        inserting methods (``paper``, ``greedy``) stop as soon as the error is at or
+        below the tolerance (or when every candidate is inserted); ``decimate`` stops
+        before a removal would raise the error above it (or when no removal is
+        left).  A fraction or count that the run does not reach first is noted in
+        :attr:`ReductionResult.notes` and logged as a warning.
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
     boundary : (m, 3) int array, optional
@@ -160,7 +169,9 @@ _STOP_PARAMS = """    data : PointData, int or str
         (tests pass :func:`trivsel.mesh.check_mesh`).
     progress : callable, optional
         Called about 200 times as ``progress(n_selected, n_target, e_rms, e_inf,
-        seconds)`` with the current E_RMS and E_inf over all points."""
+        seconds)`` with the current E_RMS and E_inf over all points; ``n_target`` is
+        the count the run goes to (up by insertion; ``decimate`` counts down to it
+        from the full grid, and calls first with the full grid's count)."""
 
 
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, boundary=None, options=None,
@@ -176,9 +187,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     N = data.n_points
     for name, tol in (("tol_rms", tol_rms), ("tol_inf", tol_inf)):
         if tol is not None and not (np.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
+            raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
     if count is not None and (isinstance(count, bool) or int(count) != count or not 1 <= count <= N):
-        raise InputError(f"count must be an integer in [1, {N}], got {count!r}")
+        raise InputError(f"count must be an integer in [1, {N}], got {shown(count)}")
     if not fractions and count is None and tol_rms is None and tol_inf is None:
         raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
     stop = dict(fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf)
@@ -273,10 +284,34 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     timings = {"curvature": t_curv, "selection": t_total - t_curv - run.t_errors, "errors": run.t_errors,
                "total": t_total}
     inserted = np.asarray(run.inserted, np.int64)
+    last = run.snapshots[-1]  # errors and tolerances both scaled (see _Scaling)
+    if stop["tol_rms"] is not None and last.errors["E_rms"] <= stop["tol_rms"]:
+        reason = "E_RMS <= tol_rms was met"
+    elif stop["tol_inf"] is not None and last.errors["E_inf"] <= stop["tol_inf"]:
+        reason = "E_inf <= tol_inf was met"
+    elif last.n_selected == n_max:
+        reason = "every selectable point was inserted"
+    else:
+        reason = "no candidate was left to insert"
+    notes = _unreached(fractions, count, N, last.n_selected, reason, up=True)
     return ReductionResult(data=user_data, selected=run.snapshots[-1].selected, curvature=scaling.curvature_out(K),
                            order=order if K is not None else inserted,
                            snapshots=[scaling.snapshot_out(s) for s in run.snapshots],
-                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats)
+                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=run.stats, notes=notes)
+
+
+def _unreached(fractions, count, N, stopped_at, reason, *, up):
+    """One note, logged as a warning, per requested fraction or count that a run stopping
+    at ``stopped_at`` points did not reach (counting ``up`` by insertion, else down)."""
+    asked = [(f"fraction {f:g} ({count_for_fraction(f, N)} points)", count_for_fraction(f, N)) for f in fractions]
+    if count is not None:
+        asked.append((f"count {int(count)}", int(count)))
+    notes = []
+    for what, m in asked:
+        if (m > stopped_at) if up else (m < stopped_at):
+            notes.append(f"{what} not reached: the run stopped at {stopped_at} points ({reason})")
+            log.warning("warning: %s", notes[-1])
+    return notes
 
 
 def _target_counts(fractions, count, N):
@@ -319,13 +354,14 @@ def _decimate(data, user_data, scaling, stop, user_stop, opts, boundary, check, 
         values=opts.values, interior=interior, check=check, progress=scaling.progress_out(progress),
         t_start=t_start)
     _requested_fractions(snaps, stop["fractions"], N)
+    notes = _unreached(stop["fractions"], stop["count"], N, snaps[0].n_selected, stats.pop("stopped"), up=False)
     t_total = time.perf_counter() - t_start
     timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
     fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
     order = selected[~fixed[selected]]
     return ReductionResult(data=user_data, selected=snaps[-1].selected, curvature=None, order=order,
                            snapshots=[scaling.snapshot_out(s) for s in snaps],
-                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=stats)
+                           options={**opts.to_dict(), **user_stop}, timings=timings, stats=stats, notes=notes)
 
 
 #: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
@@ -454,7 +490,10 @@ def _options(options, overrides):
     unknown = sorted(set(overrides) - {f.name for f in option_fields()})
     if unknown:
         raise TypeError(f"reduce() got an unexpected keyword argument {unknown[0]!r}")
-    return (replace(options, **overrides) if overrides else options).resolve()
+    merged = replace(options, **overrides) if overrides else options
+    # a keyword given is a setting, even at its default value
+    check_applicable([k for k, v in overrides.items() if v is not None], merged.method)
+    return merged.resolve()
 
 
 #: Target wall time of one call into the compiled insertion loop (see ``_Run.execute``).
@@ -593,17 +632,21 @@ class _Run:
 
 
 def _option_docs():
-    """The numpydoc entries of the option keywords, generated from :class:`Options`."""
-    from .options import _choices, _default_text
+    """The numpydoc entries of the option keywords, generated from :class:`Options` and
+    grouped by the methods they apply to (:func:`~trivsel.options.option_groups`)."""
+    from .options import _choices, _default_text, group_title, option_groups
 
     out = []
-    for f in option_fields():
-        meta = f.metadata
-        kind = ("{" + ", ".join(repr(c) for c in _choices(f)) + "}" if meta["kind"] == "choice" else meta["kind"])
-        if meta["sequence"]:
-            kind = f"list of {kind}"
-        ref = f" ({meta['paper']})" if meta["paper"] else ""
-        out.append(f"    {f.name} : {kind}, default {_default_text(f)}\n        {meta['doc']}{ref}.")
+    for methods, group in option_groups():
+        for f in group:
+            meta = f.metadata
+            kind = ("{" + ", ".join(repr(c) for c in _choices(f)) + "}" if meta["kind"] == "choice"
+                    else meta["kind"])
+            if meta["sequence"]:
+                kind = f"list of {kind}"
+            ref = f" ({meta['paper']})" if meta["paper"] else ""
+            out.append(f"    {f.name} : {kind}, default {_default_text(f)}; {group_title(methods)}\n"
+                       f"        {meta['doc']}{ref}.")
     return "\n".join(out)
 
 
@@ -626,6 +669,11 @@ reduce.__doc__ = f"""Select points and build the data-dependent tetrahedral mesh
     InputError
         For bad data, fractions, counts, tolerances or options, with a one-line
         message naming the value.
+
+    Notes
+    -----
+    Each option applies to the methods named after its default ("every method",
+    "method paper only", ...); giving it for another method raises InputError.
     """
 
 

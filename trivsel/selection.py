@@ -22,7 +22,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
-from .exceptions import InputError
+from .exceptions import InputError, shown
 
 __all__ = ["count_for_fraction", "validate_fractions", "candidate_points", "rank_candidates", "TIE_ORDERS"]
 
@@ -42,9 +42,9 @@ def validate_fractions(fractions):
         try:
             v = float(f)
         except (TypeError, ValueError):
-            raise InputError(f"fraction {f!r} is not a number") from None
+            raise InputError(f"fraction {shown(f)} is not a number") from None
         if not (0.0 < v <= 1.0) or v != v:
-            raise InputError(f"fraction {f!r} is outside (0, 1]")
+            raise InputError(f"fraction {shown(f)} is outside (0, 1]")
         out.append(v)
     return out
 

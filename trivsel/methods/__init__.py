@@ -32,7 +32,7 @@ Adding a method is one module here and one line in :data:`METHODS`.
 
 from __future__ import annotations
 
-from ..exceptions import InputError
+from ..exceptions import InputError, shown
 from . import decimate, greedy, paper
 
 __all__ = ["METHODS", "get_method"]
@@ -46,4 +46,4 @@ def get_method(name):
     try:
         return METHODS[name]
     except (KeyError, TypeError):
-        raise InputError(f"unknown method {name!r}: choose one of {', '.join(METHODS)}") from None
+        raise InputError(f"unknown method {shown(name)}: choose one of {', '.join(METHODS)}") from None

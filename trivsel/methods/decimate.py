@@ -15,8 +15,8 @@ from __future__ import annotations
 from ..exceptions import InputError
 
 NAME = "decimate"
-#: No insertion and no swapping: the swap options keep their greedy values, unused.
-DEFAULTS = {"criterion": "sse", "boundary_flips": False, "max_flips": 0}
+#: No insertion and no swapping: the swap options do not apply (they stay None).
+DEFAULTS = {"criterion": "sse"}
 GREEDY_QUEUE = False
 KERNEL = "decimate"
 #: reduce() hands the whole run to :func:`trivsel.decimation.reduce_by_collapse`.

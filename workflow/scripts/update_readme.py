@@ -1,6 +1,8 @@
 """Rule readme: put the produced Table 1 and Fig. 4 where the README shows them.
 
-Copies results/report/table1.md and the function-2 slice figure to docs/, and
+Copies results/report/table1.md (without its run times, which differ from run to run)
+and the function-2 slice figure (only when its pixels changed) to docs/, so that a rerun
+leaves the tracked files as they were, and
 replaces the text between the table1 markers of README.md with Table 1 (the
 main table and the summary line of table1.md).  With the methods comparison on
 (input ``methods_md``) it also replaces the text between the methods markers of
@@ -42,9 +44,43 @@ def replace_block(text, name, body):
     return f"{head}{begin}\n{body}\n{end}{tail}"
 
 
-shutil.copyfile(sm.input.table_md, sm.output.table_md)
-shutil.copyfile(sm.input.figure, sm.output.figure)
-print(f"copied {sm.input.table_md} -> {sm.output.table_md}, {sm.input.figure} -> {sm.output.figure}")
+def without_section(text, title):
+    """``text`` without its Markdown section ``title`` (from that heading to the next ``## ``)."""
+    head, sep, rest = text.partition(f"\n{title}\n")
+    if not sep:
+        return text
+    _, nxt, tail = rest.partition("\n## ")
+    return head + ("\n## " + tail if nxt else "\n")
+
+
+def same_pixels(a, b):
+    """Whether two PNG files hold the same image (the encoder's settings aside)."""
+    if not Path(b).is_file():
+        return False
+    import numpy as np
+    from PIL import Image
+
+    with Image.open(a) as x, Image.open(b) as y:
+        return x.size == y.size and x.mode == y.mode and np.array_equal(np.asarray(x), np.asarray(y))
+
+
+def write_if_changed(path, text):
+    path = Path(path)
+    if not path.is_file() or path.read_text() != text:
+        path.write_text(text)
+        print(f"wrote {path}")
+    else:
+        path.touch()  # the rule's output is newer than its inputs
+        print(f"{path} unchanged")
+
+
+write_if_changed(sm.output.table_md, without_section(Path(sm.input.table_md).read_text(), "## Run times"))
+if same_pixels(sm.input.figure, sm.output.figure):
+    Path(sm.output.figure).touch()
+    print(f"{sm.output.figure} unchanged (same pixels as {sm.input.figure})")
+else:
+    shutil.copyfile(sm.input.figure, sm.output.figure)
+    print(f"copied {sm.input.figure} -> {sm.output.figure}")
 
 blocks = {"table1": summary(sm.input.table_md)}
 methods_md = list(sm.input.methods_md) if "methods_md" in sm.input.keys() else []
