@@ -325,9 +325,10 @@ def test_every_option_applies_to_a_known_method():
 
 
 @pytest.mark.parametrize("kw, message", [
-    ({"seed": np.int64(-1)}, "seed must be >= 0, got -1"),
-    ({"rel_tol": np.float64("nan")}, "rel_tol must be finite, got nan"),
+    ({"seed": np.float64(2.0)}, "seed must be an integer, got 2.0"),
+    ({"max_flips": np.float32(1.5)}, "max_flips must be an integer, got 1.5"),
     ({"final_pass": np.float64(0.5)}, "final_pass must be true or false, got 0.5"),
+    ({"values": np.array(["data", "best"])}, "unknown values 'best'"),
     ({"criterion": np.str_("l3")}, "unknown criterion 'l3'"),
 ])
 def test_a_numpy_scalar_in_a_bad_option_prints_as_a_plain_number(kw, message):

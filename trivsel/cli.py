@@ -272,6 +272,7 @@ def _cmd_compile(a):
     from . import aot
     from .mesh import compile_kernels
 
+    _show_messages(False)  # the compile notice and the build's warnings as ``trivsel: ...``
     t0 = time.perf_counter()
     before = len(aot.compiled)
     compile_kernels(a.method, a.part)

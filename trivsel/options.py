@@ -165,6 +165,11 @@ class Options:
         # a value other than the default is a setting: it must apply to the method (a
         # default given explicitly cannot be told from one left out, and changes nothing)
         check_applicable(self.changed(), self.method)
+        from .methods import get_method
+
+        check_options = getattr(get_method(self.method), "check_options", None)
+        if check_options is not None:
+            check_options(self)
 
     # -- derived
     def resolve(self) -> "Options":

@@ -13,6 +13,9 @@ A method is a module that defines
 ``KERNEL``
     which driver :func:`trivsel.mesh.compile_kernels` compiles (into the extension module of
     :mod:`trivsel.mesh.entries`) for it;
+``check_options(options)``, optional
+    raises :class:`~trivsel.exceptions.InputError` for option values the method cannot
+    take whatever the data (:class:`~trivsel.options.Options` calls it);
 ``needs_curvature(options) -> bool``
     whether :func:`rank` needs the curvature graph of all points (on scattered data
     that is a Delaunay triangulation of every point);

@@ -27,13 +27,16 @@ def needs_curvature(options):
     return False
 
 
-def check(data, options):
-    """Grid data only (the collapses are tested on integer grid coordinates); the criterion
-    orders the collapses: ``sse`` (the default) by the change of the squared error, ``max``
-    by the largest residual of the points that move."""
+def check_options(options):
+    """The criterion orders the collapses: ``sse`` (the default) by the change of the squared
+    error, ``max`` by the largest residual of the points that move; not ``rms``."""
     if options.criterion == "rms":
         raise InputError("method 'decimate' orders collapses by criterion 'sse' (E_RMS) or 'max' (E_inf), "
                          "got 'rms'")
+
+
+def check(data, options):
+    """Grid data only (the collapses are tested on integer grid coordinates)."""
     if not data.is_grid:
         raise InputError("method 'decimate' needs grid data (a .vti, NIfTI, NRRD or array volume); "
                          "scattered points: use 'greedy' or 'paper'")

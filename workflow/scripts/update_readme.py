@@ -8,7 +8,7 @@ main table and the summary line of table1.md).  With the methods comparison on
 (input ``methods_md``) it also replaces the text between the methods markers of
 docs/methods.md with the summary part of results/report/methods.md (the files
 are the rule's ``docs`` parameter).  A block whose markers are missing is left
-alone.
+alone.  The rule's output lists what changed.
 """
 
 import re
@@ -40,7 +40,6 @@ def replace_block(text, name, body):
         return text
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
-    print(f"updated the {name} block")
     return f"{head}{begin}\n{body}\n{end}{tail}"
 
 
@@ -64,23 +63,25 @@ def same_pixels(a, b):
         return x.size == y.size and x.mode == y.mode and np.array_equal(np.asarray(x), np.asarray(y))
 
 
+done = []  # what changed, for the rule's output
+
+
 def write_if_changed(path, text):
     path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
     if not path.is_file() or path.read_text() != text:
         path.write_text(text)
-        print(f"wrote {path}")
+        done.append(f"wrote {path}")
     else:
-        path.touch()  # the rule's output is newer than its inputs
         print(f"{path} unchanged")
 
 
-write_if_changed(sm.output.table_md, without_section(Path(sm.input.table_md).read_text(), "## Run times"))
-if same_pixels(sm.input.figure, sm.output.figure):
-    Path(sm.output.figure).touch()
-    print(f"{sm.output.figure} unchanged (same pixels as {sm.input.figure})")
+write_if_changed(sm.params.table_md, without_section(Path(sm.input.table_md).read_text(), "## Run times"))
+if same_pixels(sm.input.figure, sm.params.figure):
+    print(f"{sm.params.figure} unchanged (same pixels as {sm.input.figure})")
 else:
-    shutil.copyfile(sm.input.figure, sm.output.figure)
-    print(f"copied {sm.input.figure} -> {sm.output.figure}")
+    shutil.copyfile(sm.input.figure, sm.params.figure)
+    done.append(f"copied {sm.input.figure} -> {sm.params.figure}")
 
 blocks = {"table1": summary(sm.input.table_md)}
 methods_md = list(sm.input.methods_md) if "methods_md" in sm.input.keys() else []
@@ -96,4 +97,9 @@ for name, body in blocks.items():
     new = replace_block(text, name, body)
     if new != text:
         doc.write_text(new)
-        print(f"wrote {doc}")
+        done.append(f"wrote the {name} block of {doc}")
+    else:
+        print(f"the {name} block of {doc} unchanged")
+
+print("\n".join(done) or "nothing changed")
+Path(sm.output.done).write_text("".join(line + "\n" for line in done) or "nothing changed\n")
