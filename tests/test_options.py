@@ -47,6 +47,8 @@ def _options_of(method):
     fields_ = [f for f in option_fields() if f.name != "method" and applies(f.name, method)]
     required = {"method": st.just(method)} if method != "paper" else {}
     optional = {f.name: _value_strategy(f) for f in fields_}
+    if method == "decimate":  # its collapses are ordered by 'sse' or 'max' (methods.decimate.check_options)
+        optional["criterion"] = st.sampled_from(["sse", "max"])
     if method == "paper":
         optional["method"] = st.just(method)
     return st.fixed_dictionaries(required, optional=optional)

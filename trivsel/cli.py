@@ -48,7 +48,9 @@ def build_parser():
     r.add_argument("--array", help="point-data array / value column of the input file")
     r.add_argument("--volume", type=int, metavar="K",
                    help="volume K (0-based) of a 4-D NIfTI or NRRD image (required when it has several)")
-    stop = r.add_argument_group("stopping (section 3)")
+    stop = r.add_argument_group("stopping (section 3)", "A fraction or count that the run does not reach (a "
+                                                         "tolerance stops it first) is a warning on stderr and a "
+                                                         "note in result.json.")
     stop.add_argument("--fractions", type=float, nargs="+", help="fractions of all points, e.g. 0.5 0.2 0.1")
     stop.add_argument("--count", type=int, help="number of points to select")
     stop.add_argument("--tol-rms", type=float, help="E_RMS tolerance: paper and greedy stop inserting once "
