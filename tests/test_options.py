@@ -351,6 +351,22 @@ def test_a_numpy_scalar_in_a_bad_argument_prints_as_a_plain_number(kw, message):
     assert message in str(e.value) and "np." not in str(e.value)
 
 
+def test_a_numpy_value_in_a_bad_choice_or_block_size_prints_as_plain_text():
+    from trivsel.selection import candidate_points, rank_candidates
+
+    with pytest.raises(trivsel.InputError) as e:
+        rank_candidates(np.zeros(3), np.arange(3), tie_order=np.str_("sideways"))
+    assert "unknown tie order 'sideways'" in str(e.value) and "np." not in str(e.value)
+    with pytest.raises(trivsel.InputError) as e:
+        candidate_points(8, np.arange(8), np.zeros(8, bool), np.str_("edges"))
+    assert "unknown candidate set 'edges'" in str(e.value) and "np." not in str(e.value)
+    from trivsel.blocks import plan_blocks
+
+    with pytest.raises(trivsel.InputError) as e:
+        plan_blocks((9, 9, 9), np.float64(2.5))
+    assert str(e.value).endswith("got 2.5") and "np." not in str(e.value)
+
+
 def test_dir_shows_the_lazy_names():
     names = dir(trivsel)
     assert {"reduce", "load", "Options", "ReductionResult", "sample_grid", "mesh", "cli"} <= set(names)

@@ -372,7 +372,7 @@ def _zarr_volume(p, array, volume):
             assert len(file_ids[1]) == 3
         except (KeyError, TypeError, ValueError, AssertionError):
             raise InputError(f"{str(p)!r}: attribute 'file_index' must be {{'base': int, 'strides': [3 ints]}}, "
-                             f"got {ids!r}") from None
+                             f"got {shown(ids)}") from None
     meta = attrs.get("meta") if isinstance(attrs.get("meta"), dict) else {}
     return Volume(shape=shape, origin=_attribute_vector(p, attrs, "origin", [0.0] * 3),
                   spacing=_attribute_vector(p, attrs, "spacing", [1.0] * 3), name=attrs.get("name", p.stem),
