@@ -141,7 +141,8 @@ def test_a_new_method_runs_in_reduce_and_in_blocks_through_the_registry(monkeypa
         calls.append(problem.boundary is not None)
         return greedy.run(problem)
 
-    toy = types.SimpleNamespace(NAME="toy", DEFAULTS=greedy.DEFAULTS, PRESCRIBED_BOUNDARY=True, check=greedy.check,
+    toy = types.SimpleNamespace(NAME="toy", DEFAULTS=greedy.DEFAULTS, PRESCRIBED_BOUNDARY=True, INSERTS=True,
+                                check=greedy.check,
                                 memory=greedy.memory, run=run, compile_kernels=greedy.compile_kernels)
     monkeypatch.setitem(METHODS, "toy", toy)
     assert trivsel.reduce(4, n=6, fractions=[0.2], method="toy").snapshots[-1].n_selected == 69

@@ -213,3 +213,114 @@ def test_errors_csv_is_identical_across_runs(tmp_path):
     assert main([*args, "--out", str(b)]) == 0
     assert (a / "errors.csv").read_bytes() == (b / "errors.csv").read_bytes()
     assert "seconds" not in (a / "errors.csv").read_text().splitlines()[0]
+
+
+def _run_cli_raw(*args):
+    """:func:`_run_cli` with stderr as written (text mode would turn each \\r into a new line)."""
+    p = subprocess.run([sys.executable, "-m", "trivsel", *args], capture_output=True)
+    p.stdout, p.stderr = p.stdout.decode(), p.stderr.decode()
+    return p
+
+
+def _progress_lines(stderr):
+    """The progress updates of a --progress always run: every piece between \\r and \\n with 'points/s'."""
+    return [x for x in stderr.replace("\r", "\n").splitlines() if "points/s" in x]
+
+
+def _bars(lines):
+    return [x.split("]")[0].lstrip("[") for x in lines]
+
+
+def test_decimate_progress_counts_down_on_one_line_and_ends_it(tmp_path):
+    """decimate goes down from the full grid: 'N points, down to T', the count falling, the bar
+    filling to its width and never beyond, all on one line that ends before the next output."""
+    p = _run_cli_raw("reduce", "--function", "4", "--n", "8", "--method", "decimate", "--fractions", "0.3",
+                     "0.1", "--out", str(tmp_path / "o"), "--progress", "always")
+    assert p.returncode == 0, p.stderr
+    lines = _progress_lines(p.stderr)
+    counts = [int(x.split("] ")[1].split(" points")[0]) for x in lines]
+    assert all(", down to 73" in x for x in lines), lines  # 10 % of 729, rounded half up
+    assert counts[0] == 729 and counts[-1] == 73 and counts == sorted(counts, reverse=True), counts
+    bars = _bars(lines)
+    assert all(len(b) == 24 for b in bars) and bars[0].strip() == "" and bars[-1] == "#" * 24
+    assert not [x for x in lines if "/73 points" in x]
+    progress = p.stderr[p.stderr.index("\r["):]
+    line, _, after = progress.partition("\n")  # the whole progress line, then the next output
+    assert line.count("\r") == len(lines) and "points/s" not in after
+    assert after.startswith("wrote "), after
+
+
+def test_a_run_stopped_by_a_tolerance_ends_its_line_and_names_the_fraction_it_missed(tmp_path):
+    out = tmp_path / "o"
+    p = _run_cli_raw("reduce", "--function", "4", "--n", "8", "--fractions", "0.5", "0.1", "--tol-rms", "0.06",
+                     "--out", str(out), "--progress", "always")
+    assert p.returncode == 0, p.stderr
+    lines = _progress_lines(p.stderr)
+    stopped = int(lines[-1].split("] ")[1].split("/")[0])
+    assert stopped < 365 and lines[-1].split("] ")[1].startswith(f"{stopped}/365 points")
+    note = (f"fraction 0.5 (365 points) not reached: the run stopped at {stopped} points "
+            "(E_RMS <= tol_rms was met)")
+    after = p.stderr.split(lines[-1], 1)[1]
+    assert after.lstrip(" ").startswith(f"\ntrivsel: warning: {note}\n"), after  # the progress line ended first
+    assert json.loads((out / "result.json").read_text())["notes"] == [note]
+    quiet = _run_cli("reduce", "--function", "4", "--n", "8", "--fractions", "0.5", "0.1", "--tol-rms", "0.06",
+                     "--out", str(tmp_path / "q"))  # no progress: the warning still shows
+    assert f"trivsel: warning: {note}\n" in quiet.stderr and "points/s" not in quiet.stderr
+
+
+def test_decimate_stopped_by_a_tolerance_says_which_fraction_it_did_not_reach(tmp_path, caplog):
+    import trivsel
+
+    out = tmp_path / "o"
+    p = _run_cli("reduce", "--function", "4", "--n", "8", "--method", "decimate", "--fractions", "0.5", "0.1",
+                 "--tol-inf", "0.05", "--out", str(out))
+    assert p.returncode == 0, p.stderr
+    info = json.loads((out / "result.json").read_text())
+    stopped = min(s["n_selected"] for s in info["snapshots"])
+    assert stopped > 73
+    note = (f"fraction 0.1 (73 points) not reached: the run stopped at {stopped} points (no collapse was left "
+            "that keeps every residual within tol_inf)")
+    assert info["notes"] == [note] and p.stderr.startswith(f"trivsel: warning: {note}\n"), p.stderr
+    with caplog.at_level("WARNING", logger="trivsel"):
+        r = trivsel.reduce(4, n=8, method="decimate", fractions=[0.5, 0.1], tol_inf=0.05)
+    assert r.notes == [note] and [rec.getMessage() for rec in caplog.records] == [f"warning: {note}"]
+    assert trivsel.reduce(4, n=8, method="decimate", fractions=[0.5, 0.1]).notes == []
+
+
+def test_tolerance_help_is_right_for_both_directions():
+    from trivsel.cli import build_parser
+
+    reduce_parser = build_parser()._subparsers._group_actions[0].choices["reduce"]
+    helps = {a.dest: a.help for a in reduce_parser._actions}
+    for name, err in (("tol_rms", "E_RMS"), ("tol_inf", "E_inf")):
+        assert f"paper and greedy stop inserting once {err} <= this" in helps[name]
+        assert f"decimate stops removing before {err} would exceed it" in helps[name]
+
+
+def test_compile_says_what_it_did(capsys):
+    assert main(["compile", "--method", "decimate"]) == 0
+    out = capsys.readouterr().out
+    assert out.startswith("the decimate kernels were compiled already: loaded in "), out
+    assert "0 kernel" not in out
+
+
+def test_the_one_time_compile_is_announced_when_stderr_is_not_a_terminal(tmp_path, monkeypatch, capsys):
+    """A reduction that has to build its kernels says so first, on stderr, with the time it takes; one
+    that finds them built says nothing.  (The build itself is replaced by a quick failure here, which
+    falls back to numba's kernels.)"""
+    from trivsel import aot
+
+    args = ["reduce", "--function", "4", "--n", "4", "--method", "decimate", "--fractions", "0.5"]
+    assert main([*args, "--out", str(tmp_path / "warm")]) == 0
+    assert "compiling" not in capsys.readouterr().err  # built: nothing to announce
+
+    def no_build(module, state, path, variant=None):
+        raise OSError("no C compiler here")
+
+    monkeypatch.setattr(aot, "cache_dir", lambda: tmp_path / "aot")
+    monkeypatch.setattr(aot, "build", no_build)
+    assert main([*args, "--out", str(tmp_path / "cold")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert err[0] == "trivsel: compiling the decimation kernels once for this machine (about 30-60 s; later runs " \
+                     "load them)", err
+    assert err[1].startswith("trivsel: could not compile trivsel.decimation.collapse ahead of time"), err

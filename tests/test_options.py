@@ -21,7 +21,8 @@ from conftest import examples
 import trivsel
 from trivsel.cli import build_parser
 from trivsel.methods import METHODS, get_method
-from trivsel.options import Options, config_schema, option_fields, options_markdown, variant_tag
+from trivsel.options import (Options, applies, config_schema, option_fields, option_groups, options_markdown,
+                             variant_tag)
 
 REPO = Path(__file__).resolve().parents[1]
 LIBRARY = REPO / "trivsel"
@@ -42,7 +43,20 @@ def _value_strategy(f):
     return st.floats(min_value=meta["minimum"], max_value=1e3, allow_nan=False, allow_infinity=False)
 
 
-_OPTIONS = st.fixed_dictionaries({}, optional={f.name: _value_strategy(f) for f in option_fields()})
+def _options_of(method):
+    """Keyword dicts of :class:`Options` for ``method``: any values of the options that apply to it
+    (``method`` itself left out, for the default method, as often as not)."""
+    fields_ = [f for f in option_fields() if f.name != "method" and applies(f.name, method)]
+    required = {"method": st.just(method)} if method != "paper" else {}
+    optional = {f.name: _value_strategy(f) for f in fields_}
+    if method == "decimate":  # its collapses are ordered by 'sse' or 'max' (methods.decimate.check_options)
+        optional["criterion"] = st.sampled_from(["sse", "max"])
+    if method == "paper":
+        optional["method"] = st.just(method)
+    return st.fixed_dictionaries(required, optional=optional)
+
+
+_OPTIONS = st.sampled_from(list(METHODS)).flatmap(_options_of)
 
 
 @settings(max_examples=examples(4 / 3), deadline=None)
@@ -208,3 +222,156 @@ def test_no_import_cycles_in_the_library():
 
     for m in graph:
         visit(m, [])
+
+
+# -- options that do not apply to the method
+
+#: (method, option, a value other than the default, the methods the option applies to)
+_INAPPLICABLE = [
+    ("decimate", "greedy_key", "sse", "greedy"),
+    ("paper", "greedy_key", "sse", "greedy"),
+    ("greedy", "curvature", "local-frame", "paper"),
+    ("greedy", "ranking", "random", "paper"),
+    ("greedy", "tie_order", "random", "paper"),
+    ("decimate", "seed", 3, "paper"),
+    ("decimate", "max_flips", 3, "paper and greedy"),
+    ("decimate", "boundary_flips", False, "paper and greedy"),
+    ("decimate", "swap_memory", "call", "paper and greedy"),
+    ("decimate", "final_pass", True, "paper and greedy"),
+    ("paper", "lazy_queue", False, "decimate"),
+]
+
+
+def _flag_args(name, value):
+    flag = "--" + name.replace("_", "-")
+    if isinstance(value, bool):
+        return [flag if value else "--no-" + flag[2:]]
+    return [flag, str(value)]
+
+
+@pytest.mark.parametrize("method, name, value, only", _INAPPLICABLE)
+def test_an_option_of_another_method_is_refused_naming_its_methods(method, name, value, only):
+    message = f"option {name} (--{name.replace('_', '-')}) applies to method"
+    tail = f" {only} only, not to {method}"
+    with pytest.raises(trivsel.InputError) as e:
+        Options(method=method, **{name: value})
+    assert message in str(e.value) and str(e.value).endswith(tail) and "\n" not in str(e.value)
+    with pytest.raises(trivsel.InputError, match=f"{name}.*{tail}"):
+        trivsel.reduce(4, n=4, fractions=[0.5], method=method, **{name: value})
+    with pytest.raises(trivsel.InputError, match=f"{name}.*{tail}"):  # an Options object and a keyword
+        trivsel.reduce(4, n=4, fractions=[0.5], options=Options(method=method), **{name: value})
+
+
+@pytest.mark.parametrize("method, name, value, only", _INAPPLICABLE)
+def test_the_command_line_refuses_an_option_of_another_method(tmp_path, method, name, value, only):
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", "--function", "4", "--n", "4", "--fractions",
+                        "0.5", "--method", method, *_flag_args(name, value), "--out", str(out)],
+                       capture_output=True, text=True, cwd=REPO)
+    assert r.returncode == 2 and r.stdout == ""
+    assert r.stderr.strip() == (f"trivsel: error: option {name} (--{name.replace('_', '-')}) applies to "
+                                f"method{'s' if ' and ' in only else ''} {only} only, not to {method}")
+    assert not out.exists()
+
+
+def test_a_flag_given_at_its_default_value_is_still_refused_for_another_method(tmp_path):
+    """On the command line and as a keyword of reduce, what the user gives is a setting,
+    even when it equals the default; an Options object cannot tell, and accepts it."""
+    from trivsel.cli import main
+
+    assert main(["reduce", "--function", "4", "--n", "4", "--fractions", "0.5", "--method", "decimate",
+                 "--greedy-key", "max", "--out", str(tmp_path / "o")]) == 2
+    with pytest.raises(trivsel.InputError, match="greedy_key .* applies to method greedy only, not to decimate"):
+        trivsel.reduce(4, n=4, fractions=[0.5], method="decimate", greedy_key="max")
+    assert Options(method="decimate", greedy_key="max") == Options(method="decimate")
+
+
+def test_defaults_of_options_that_do_not_apply_are_fine_and_resolve_to_nothing_for_decimate():
+    for name in METHODS:
+        Options(method=name)  # every default, whatever applies
+    resolved = Options(method="decimate").resolve()
+    assert resolved.criterion == "sse" and resolved.max_flips is None and resolved.boundary_flips is None
+    r = trivsel.reduce(4, n=4, fractions=[0.5], method="decimate")
+    assert r.options["method"] == "decimate" and r.options["max_flips"] is None
+
+
+def test_help_and_docstring_group_the_options_by_method():
+    reduce_parser = build_parser()._subparsers._group_actions[0].choices["reduce"]
+    titles = {a.dest: g.title for g in reduce_parser._action_groups for a in g._group_actions}
+    assert titles["method"].startswith("options of every method")
+    assert titles["greedy_key"] == "options of method greedy only"
+    assert titles["lazy_queue"] == "options of method decimate only"
+    assert titles["curvature"] == titles["seed"] == "options of method paper only"
+    assert titles["max_flips"] == titles["final_pass"] == "options of methods paper and greedy only"
+    helptext = reduce_parser.format_help()
+    assert helptext.index("options of method paper only") < helptext.index("\n  --curvature") \
+        < helptext.index("options of method greedy only") < helptext.index("\n  --greedy-key")
+    doc = trivsel.reduce.__doc__
+    assert "greedy_key : {'max', 'sse'}, default max; method greedy only" in doc
+    assert "lazy_queue : bool, default true; method decimate only" in doc
+    assert "max_flips : int, default method's default; methods paper and greedy only" in doc
+    # grouped: every method's options first, then by method
+    order = [f.name for _, group in option_groups() for f in group]
+    positions = [doc.index(f"    {name} : ") for name in order]
+    assert positions == sorted(positions)
+    md = options_markdown()
+    assert md.index("## Method paper only") < md.index("| `curvature` |") < md.index("## Method greedy only")
+
+
+def test_every_option_applies_to_a_known_method():
+    from trivsel.options import method_group
+
+    for f in option_fields():
+        assert method_group(f.name) and set(method_group(f.name)) <= set(METHODS), f.name
+    assert method_group("max_flips") == ("paper", "greedy")
+    assert [f.name for f in option_fields() if not applies(f.name, "decimate")] == [
+        "tie_order", "boundary_diagonals", "vertices_in_error", "final_pass", "first_improving", "curvature",
+        "neighbourhood", "ranking", "rel_tol", "quantum", "seed", "greedy_key", "boundary_flips", "max_flips",
+        "swap_memory"]
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"seed": np.float64(2.0)}, "seed must be an integer, got 2.0"),
+    ({"max_flips": np.float32(1.5)}, "max_flips must be an integer, got 1.5"),
+    ({"final_pass": np.float64(0.5)}, "final_pass must be true or false, got 0.5"),
+    ({"values": np.array(["data", "best"])}, "unknown values 'best'"),
+    ({"criterion": np.str_("l3")}, "unknown criterion 'l3'"),
+])
+def test_a_numpy_scalar_in_a_bad_option_prints_as_a_plain_number(kw, message):
+    with pytest.raises(trivsel.InputError) as e:
+        Options(**kw)
+    assert message in str(e.value) and "np." not in str(e.value) and "array(" not in str(e.value)
+
+
+@pytest.mark.parametrize("kw, message", [
+    ({"fractions": [np.float64(1.5)]}, "fraction 1.5 is outside (0, 1]"),
+    ({"fractions": [0.5], "tol_rms": np.float64(-0.5)}, "tol_rms must be a finite number >= 0, got -0.5"),
+    ({"count": np.int64(10**9)}, "got 1000000000"),
+    ({"fractions": [0.5], "threads": np.int64(0)}, "threads must be an integer >= 1, got 0"),
+])
+def test_a_numpy_scalar_in_a_bad_argument_prints_as_a_plain_number(kw, message):
+    with pytest.raises(trivsel.InputError) as e:
+        trivsel.reduce(4, n=4, **kw)
+    assert message in str(e.value) and "np." not in str(e.value)
+
+
+def test_a_numpy_value_in_a_bad_choice_or_block_size_prints_as_plain_text():
+    from trivsel.selection import candidate_points, rank_candidates
+
+    with pytest.raises(trivsel.InputError) as e:
+        rank_candidates(np.zeros(3), np.arange(3), tie_order=np.str_("sideways"))
+    assert "unknown tie order 'sideways'" in str(e.value) and "np." not in str(e.value)
+    with pytest.raises(trivsel.InputError) as e:
+        candidate_points(8, np.arange(8), np.zeros(8, bool), np.str_("edges"))
+    assert "unknown candidate set 'edges'" in str(e.value) and "np." not in str(e.value)
+    from trivsel.blocks import plan_blocks
+
+    with pytest.raises(trivsel.InputError) as e:
+        plan_blocks((9, 9, 9), np.float64(2.5))
+    assert str(e.value).endswith("got 2.5") and "np." not in str(e.value)
+
+
+def test_dir_shows_the_lazy_names():
+    names = dir(trivsel)
+    assert {"reduce", "load", "Options", "ReductionResult", "sample_grid", "mesh", "cli"} <= set(names)
+    assert set(trivsel.__all__) <= set(names)

@@ -168,6 +168,21 @@ def test_sweep_of_a_non_path_option(tmp_path):
         assert result["options"]["max_flips"] in ((0, None) if tag == "default" else (3,)), result["options"]
 
 
+@pytest.mark.slow
+def test_a_method_sweep_gives_each_method_only_its_own_options(tmp_path):
+    """method x curvature x seed: the paper method runs every combination, greedy (to which
+    neither applies) runs once, with no curvature or seed in its folder name or flags."""
+    write_config(tmp_path, {"data": {"functions": [1], "n": [4]}, "reduce": {"fractions": [0.5], "options": {
+        "method": ["paper", "greedy"], "criterion": [None], "curvature": ["direct", "local-frame"],
+        "seed": [0, 1]}}})
+    r = run_smk(tmp_path, "--dry-run")
+    assert r.returncode == 0, r.output
+    assert planned(r.output, "reduce") == 5, r.output
+    for tag in ("default", "curv~local-frame", "seed~1", "curv~local-frame_seed~1", "method~greedy"):
+        assert f"results/runs/n4/{tag}/f1/errors.csv" in r.output, (tag, r.output)
+    assert "method~greedy_curv" not in r.output and "method~greedy_seed" not in r.output
+
+
 def test_schema_rejects_bad_value_naming_the_key(tmp_path):
     """What a user sees: snakemake stops before running anything and names the key."""
     write_config(tmp_path, {"reduce": {"fractions": [0.5, 1.5]}})
@@ -404,7 +419,22 @@ def test_readme_rule_rewrites_the_marked_block(tiny_run):
     text = (tiny_run / "README.md").read_text()
     assert "stale" not in text and text.startswith("# title\n") and text.endswith("\n\nmore text\n")
     assert "| Function | 50 % | 20 % | 10 % |" in text and "2. Quadratic polynomial" in text
-    assert (tiny_run / "docs" / "fig4_saddle_slices.png").stat().st_size > 10_000
+    figure, table = tiny_run / "docs" / "fig4_saddle_slices.png", tiny_run / "docs" / "table1.md"
+    assert figure.stat().st_size > 10_000
+    # docs/ holds only what a rerun reproduces: no run times, and the figure rewritten only when its
+    # pixels change (a rerun's report differs in its times, and a PNG encoder may differ in its bytes)
+    report = tiny_run / "results" / "report"
+    assert "## Run times" in (report / "table1.md").read_text() and "## Run times" not in table.read_text()
+    before = {p: p.read_bytes() for p in (figure, table)}
+    (report / "table1.md").write_text((report / "table1.md").read_text().replace("| total |", "| total | 99.99 "))
+    from PIL import Image
+
+    with Image.open(report / "figures" / "slices_f2.png") as im:
+        im.load()
+        im.save(report / "figures" / "slices_f2.png", compress_level=9)
+    r = run_smk(tiny_run, "readme", "--forcerun", "readme")
+    assert r.returncode == 0, r.output
+    assert {p: p.read_bytes() for p in (figure, table)} == before
 
 
 @pytest.mark.parametrize("overrides,messages", [
@@ -435,6 +465,15 @@ def test_readme_rule_rewrites_the_marked_block(tiny_run):
       "candidates: interior", "the largest fraction for n = 4 is 0.283"]),
     ({"methods": {"activate": True}, "data": {"n": [4]}},
      ["config methods: fractions: 0.05 selects 6 of the 125 points of n = 4"]),
+    # an option that applies to none of the swept methods, and a criterion decimate cannot take
+    ({"reduce": {"options": {"greedy_key": ["max", "sse"]}}},
+     ["config reduce: options: greedy_key: 'sse' applies to greedy only, not to the swept method(s) paper"]),
+    ({"reduce": {"options": {"method": ["decimate"], "criterion": [None], "max_flips": [3]}}},
+     ["config reduce: options: max_flips: 3 applies to paper and greedy only, not to the swept method(s) "
+      "decimate"]),
+    ({"reduce": {"options": {"method": ["paper", "decimate"]}}},
+     ["config reduce: options: method 'decimate' orders collapses by criterion 'sse' (E_RMS) or 'max' (E_inf), "
+      "got 'rms'"]),
 ])
 @pytest.mark.slow
 def test_bad_config_fails_before_any_job(tmp_path, overrides, messages):

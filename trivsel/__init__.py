@@ -58,5 +58,11 @@ def __getattr__(name):
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
+def __dir__():
+    """The loaded names and the lazy ones (:data:`_LAZY`, the submodules), so that ``dir(trivsel)``
+    and completion show ``reduce``, ``load``, ``Options`` before their first use."""
+    return sorted(set(globals()) | set(_LAZY) | _SUBMODULES)
+
+
 __all__ = ["InputError", "Options", "PointData", "FUNCTIONS", "sample_grid", "scattered", "grid_from_array",
            "reduce", "ReductionResult", "load", "write_outputs"]

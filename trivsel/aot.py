@@ -186,8 +186,47 @@ def _exports(module, state, variant):
     return mod.aot_exports(st) if variant is None else mod.aot_exports(st, variant)
 
 
+#: How long the notice before the one-time compile of a method's kernels says it takes.
+COMPILE_SECONDS = "30-60 s"
+
+
+def compile_notice(what):
+    """Say on the ``trivsel`` logger, at WARNING so that it shows without any logging set
+    up (and in the command line whether stderr is a terminal or not), that the kernels of
+    ``what`` are being compiled, and for about how long."""
+    compiled.append(what)
+    log.warning("compiling the %s kernels once for this machine (about %s; later runs load them)", what,
+                COMPILE_SECONDS)
+
+
+#: What :func:`compile_notice` announced in this process, in order.
+compiled: list = []
+
+
+def _label(module, variant):
+    """What the notice calls the kernels of ``module``: the variant (``paper``), else the
+    package they belong to (``trivsel.decimation.collapse``: ``decimation``)."""
+    return variant or module.split(".")[1]
+
+
+def in_cache(fn, sig) -> bool:
+    """Whether numba's on-disk cache holds ``fn`` compiled for ``sig`` (a numba signature or a
+    tuple of argument types) on this machine; reads the cache's index only, ``False`` if it
+    cannot tell."""
+    try:
+        cache = fn._cache
+        return cache._index_key(tuple(getattr(sig, "args", sig)), fn.targetctx.codegen()) in \
+            cache._cache_file._load_index()
+    except Exception:  # noqa: BLE001 - another numba's internals
+        return False
+
+
 def _jit(module, state, variant=None):
-    ns = types.SimpleNamespace(**{k: e[0] for k, e in _exports(module, state, variant).items()})
+    exports = _exports(module, state, variant)
+    if hasattr(next(iter(exports.values()))[0], "py_func") and not all(in_cache(e[0], e[1])
+                                                                       for e in exports.values()):
+        compile_notice(_label(module, variant))  # numba compiles them on their first call
+    ns = types.SimpleNamespace(**{k: e[0] for k, e in exports.items()})
     ns.JIT = True  # numba's own kernels, not an extension module
     return ns
 
@@ -262,7 +301,7 @@ def kernels(module, sources, state, *, variant=None, rebuild=False):
     if rebuild and failed.exists():
         failed.unlink()
     if not path.exists() and not failed.exists():
-        log.info("compiling %s ahead of time (once per machine)", module)
+        compile_notice(_label(module, variant))
         try:
             build(module, state, path, variant)
             _prune(path)

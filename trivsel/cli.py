@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .exceptions import InputError, MemoryShortage, one_line
+from .exceptions import InputError, MemoryShortage, one_line, shown
 
 __all__ = ["main", "build_parser"]
 
@@ -48,11 +48,17 @@ def build_parser():
     r.add_argument("--array", help="point-data array / value column of the input file")
     r.add_argument("--volume", type=int, metavar="K",
                    help="volume K (0-based) of a 4-D NIfTI or NRRD image (required when it has several)")
-    stop = r.add_argument_group("stopping (section 3)")
+    stop = r.add_argument_group("stopping (section 3)", "A fraction or count that the run does not reach (a "
+                                                         "tolerance stops it first) is a warning on stderr and a "
+                                                         "note in result.json.")
     stop.add_argument("--fractions", type=float, nargs="+", help="fractions of all points, e.g. 0.5 0.2 0.1")
     stop.add_argument("--count", type=int, help="number of points to select")
-    stop.add_argument("--tol-rms", type=float, help="stop when E_RMS <= this")
-    stop.add_argument("--tol-inf", type=float, help="stop when E_inf <= this")
+    stop.add_argument("--tol-rms", type=float, help="E_RMS tolerance: paper and greedy stop inserting once "
+                                                    "E_RMS <= this; decimate stops removing before E_RMS would "
+                                                    "exceed it")
+    stop.add_argument("--tol-inf", type=float, help="E_inf tolerance: paper and greedy stop inserting once "
+                                                    "E_inf <= this; decimate stops removing before E_inf would "
+                                                    "exceed it")
     r.add_argument("--boundary", metavar="TRIANGLES.npy",
                    help="prescribed boundary of grid data: an (m, 3) integer array of point indices (C order "
                         "over i, j, k) forming a closed triangulation of the box's surface, each triangle in "
@@ -69,7 +75,7 @@ def build_parser():
                         "does not depend on it)")
     from .options import add_arguments
 
-    add_arguments(r.add_argument_group("method options (trivsel.Options; the defaults reproduce Table 1)"))
+    add_arguments(r)  # one group per set of methods the options apply to
 
     k = sub.add_parser("compile", help="compile the numba kernels into the on-disk cache (once per machine)",
                        description="A reduction compiles its kernels on first use (once; they load "
@@ -144,30 +150,74 @@ def _version():
     return f"trivsel {__version__}"
 
 
-def _progress_line(done, total, e_rms, e_inf, seconds):
-    """One self-overwriting status line: bar, points, current errors, rate."""
+class _Progress:
+    """One self-overwriting status line on stderr: bar, points, current errors, rate.
+
+    Works both ways: a run that inserts counts up to its target, a decimation counts
+    down to it (the first call gives the count it starts from).  :meth:`close` ends the
+    line, however the run ended (a tolerance or an interruption stops it short of the
+    target), and log lines end it before they are written."""
+
     width = 24
-    frac = done / total if total else 1.0
-    bar = "#" * int(round(width * frac))
-    rate = done / seconds if seconds > 0 else 0.0
-    end = "\n" if done >= total else ""
-    sys.stderr.write(f"\r[{bar:<{width}}] {done}/{total} points  E_rms {e_rms:.4g}  E_inf {e_inf:.4g}  "
-                     f"{rate:.0f} points/s{end}")
-    sys.stderr.flush()
+
+    def __init__(self, stream=None):
+        self.stream = stream or sys.stderr
+        self.start = None
+        self.open = False
+        self.length = 0
+
+    def __call__(self, done, total, e_rms, e_inf, seconds):
+        if self.start is None:
+            self.start = done
+        if total >= self.start:  # inserting: up to the target
+            frac = done / total if total else 1.0
+            counts = f"{done}/{total} points"
+        else:  # decimating: from the first count down to the target
+            frac = (self.start - done) / (self.start - total)
+            counts = f"{done} points, down to {total}"
+        frac = min(max(frac, 0.0), 1.0)
+        moved = done if total >= self.start else self.start - done  # points inserted, or removed
+        rate = moved / seconds if seconds > 0 else 0.0
+        bar = "#" * int(round(self.width * frac))
+        text = (f"[{bar:<{self.width}}] {counts}  E_rms {e_rms:.4g}  E_inf {e_inf:.4g}  "
+                f"{rate:.0f} points/s")
+        self.stream.write("\r" + text + " " * max(self.length - len(text), 0))
+        self.stream.flush()
+        self.open, self.length = True, len(text)
+
+    def close(self):
+        """End the line (once)."""
+        if self.open:
+            self.stream.write("\n")
+            self.stream.flush()
+            self.open = False
 
 
-def _show_stages():
-    """Print the reduction's stage messages (hull, Delaunay, curvature, insertion) on
-    stderr with the time since start, so that long stages are visibly under way."""
+def _show_messages(stages, progress=None):
+    """Print the reduction's messages on stderr: always its warnings and the one-time
+    compile notice (``trivsel: ...``), and with ``stages`` its stage messages (hull,
+    Delaunay, curvature, insertion) with the time since start, so that long stages are
+    visibly under way.  A progress line that is open is ended first."""
     import logging
 
+    class Lines(logging.Handler):
+        _trivsel_cli = True
+
+        def emit(self, record):
+            if progress is not None:
+                progress.close()
+            if record.levelno >= logging.WARNING:
+                text = f"trivsel: {record.getMessage()}"
+            else:
+                text = f"trivsel [{record.relativeCreated:7.0f} ms] {record.getMessage()}"
+            sys.stderr.write(text + "\n")
+            sys.stderr.flush()
+
     logger = logging.getLogger("trivsel")
-    if not any(getattr(h, "_trivsel_cli", False) for h in logger.handlers):
-        handler = logging.StreamHandler(sys.stderr)
-        handler.setFormatter(logging.Formatter("trivsel [%(relativeCreated)7.0f ms] %(message)s"))
-        handler._trivsel_cli = True
-        logger.addHandler(handler)
-    logger.setLevel(logging.INFO)
+    for h in [h for h in logger.handlers if getattr(h, "_trivsel_cli", False)]:
+        logger.removeHandler(h)
+    logger.addHandler(Lines())
+    logger.setLevel(logging.INFO if stages else logging.WARNING)
 
 
 def _cmd_reduce(a):
@@ -183,8 +233,8 @@ def _cmd_reduce(a):
     files = ["errors.csv", "result.json"] + [f"mesh_{fraction_label(f)}.vtu" for f in a.fractions or ()]
     check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None], files)  # before any work
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())
-    if show:
-        _show_stages()
+    progress = _Progress() if show else None
+    _show_messages(show, progress)
     if a.function is not None:
         if a.array is not None:
             raise InputError("--array applies to input files, not to --function")
@@ -206,11 +256,13 @@ def _cmd_reduce(a):
 
             data = interruptible(load, a.input, a.array, volume=a.volume)  # large files: Ctrl-C stays prompt
         result = reduce(data, fractions=a.fractions, count=a.count, tol_rms=a.tol_rms, tol_inf=a.tol_inf,
-                        boundary=boundary, options=options, threads=a.threads, check=check,
-                        progress=_progress_line if show else None)
+                        boundary=boundary, options=options, threads=a.threads, check=check, progress=progress)
     except MemoryShortage as exc:
         hint = _blocks_hint(a, options.method, exc.available)
         raise InputError(f"{exc}; {hint}" if hint else str(exc)) from None
+    finally:
+        if progress is not None:
+            progress.close()
     unmet = _unmet_tolerance(result.snapshots[-1].errors, tol_rms=a.tol_rms, tol_inf=a.tol_inf)
     extra = {"command": sys.argv}
     if a.tol_rms is not None or a.tol_inf is not None:
@@ -294,14 +346,24 @@ def _read_triangles(path):
 
 
 def _cmd_compile(a):
+    import os
     import time
 
+    from . import aot
     from .methods import get_method
 
+    _show_messages(False)  # the compile notice and the build's warnings as ``trivsel: ...``
     t0 = time.perf_counter()
-    n = get_method(a.method).compile_kernels(a.part)
-    part = "all parts" if a.part is None else f"part {a.part}"
-    print(f"compiled or loaded {n} kernel signatures ({a.method}, {part}) in {time.perf_counter() - t0:.1f} s")
+    before = len(aot.compiled)
+    get_method(a.method).compile_kernels(a.part)
+    what = f"the {a.method} kernels" + ("" if a.part is None else f" (part {a.part})")
+    took = time.perf_counter() - t0
+    if os.environ.get("NUMBA_DISABLE_JIT", "0").strip() not in ("", "0"):
+        print(f"nothing to compile: NUMBA_DISABLE_JIT is set, so {what} run as Python")
+    elif len(aot.compiled) > before:
+        print(f"compiled {what} in {took:.1f} s")
+    else:
+        print(f"{what} were compiled already: loaded in {took:.1f} s")
     return 0
 
 
@@ -315,7 +377,7 @@ def _cmd_compare(a):
 
     for name, tol in (("--rtol", a.rtol), ("--atol", a.atol)):
         if not (math.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
+            raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
     frames = []
     for path in (a.new, a.golden):
         if not os.path.isfile(path):

@@ -19,7 +19,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .exceptions import InputError
+from .exceptions import InputError, shown
 from .functions import FUNCTIONS, resolve_function
 
 __all__ = ["PointData", "sample_grid", "grid_from_array", "check_grid_geometry", "scattered", "points_values",
@@ -103,7 +103,7 @@ def sample_grid(function, n: int = 16) -> PointData:
     """
     num = resolve_function(function)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise InputError(f"grid resolution n must be an integer >= 2, got {n!r}")
+        raise InputError(f"grid resolution n must be an integer >= 2, got {shown(n)}")
     n = int(n)
     from .resources import GRID_BYTES_PER_POINT, check_memory
 

@@ -26,7 +26,7 @@ class MemoryShortage(InputError):
 def check_threads(threads):
     """``threads`` as an int >= 1; one-line InputError otherwise."""
     if isinstance(threads, bool) or not isinstance(threads, numbers.Integral) or threads < 1:
-        raise InputError(f"threads must be an integer >= 1, got {threads!r}")
+        raise InputError(f"threads must be an integer >= 1, got {shown(threads)}")
     return int(threads)
 
 
@@ -40,3 +40,12 @@ def one_line(exc, *, first: bool = False) -> str:
     if first:
         text = text.splitlines()[0] if text else ""
     return " ".join(text.split()) or type(exc).__name__
+
+
+def shown(value) -> str:
+    """``repr`` of a value for a message, with NumPy scalars and arrays as plain Python
+    (``0.5``, not ``np.float64(0.5)``; ``[1, 2]``, not ``array([1, 2])``)."""
+    tolist = getattr(value, "tolist", None)
+    if tolist is not None and type(value).__module__ == "numpy":
+        value = tolist()
+    return repr(value)

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .exceptions import InputError
+from .exceptions import InputError, shown
 
 __all__ = ["FUNCTIONS", "resolve_function"]
 
@@ -63,4 +63,4 @@ def resolve_function(function) -> int:
     if isinstance(key, (int, np.integer)) and not isinstance(key, bool) and int(key) in FUNCTIONS:
         return int(key)
     choices = ", ".join(f"{k} ({v[0]})" for k, v in FUNCTIONS.items())
-    raise InputError(f"unknown function {function!r}: choose one of {choices}")
+    raise InputError(f"unknown function {shown(function)}: choose one of {choices}")

@@ -15,7 +15,10 @@ generated from it:
 
 A field whose default is ``None`` takes the default of the chosen method
 (``DEFAULTS`` of the method's module in :mod:`trivsel.methods`); after
-:meth:`Options.resolve` every field has a concrete value.
+:meth:`Options.resolve` every field that applies to the method has a concrete
+value.  Each field names the methods it applies to (``methods``; all when
+absent): a value other than its default for another method is refused, and
+``--help``, the docs and the workflow's schema group the options by it.
 
 Regenerate the generated files with ``python -m trivsel.options``.
 """
@@ -27,25 +30,34 @@ import math
 import numbers
 from dataclasses import asdict, dataclass, field, fields, replace
 
-from .exceptions import InputError
+from .exceptions import InputError, shown
 from .selection import TIE_ORDERS
 
 __all__ = ["Options", "option_fields", "add_arguments", "from_namespace", "variant_tag", "config_schema",
-           "options_markdown", "METHOD_DEFAULT"]
+           "options_markdown", "METHOD_DEFAULT", "applies", "check_applicable", "option_groups"]
 
 #: How the docs and ``--help`` show a default that depends on the method.
 METHOD_DEFAULT = "method's default"
 
 
-def _option(default, doc, *, kind, choices=None, paper=None, tag, flag=None, minimum=None, sequence=False):
+#: The options of every method that inserts points and swaps after each insertion: the
+#: methods whose module says ``INSERTS = True`` (:mod:`trivsel.methods`), so that a new
+#: inserting method takes them without a change here.
+INSERTING = "inserting"
+
+
+def _option(default, doc, *, kind, choices=None, paper=None, tag, flag=None, minimum=None, sequence=False,
+            methods=None):
     """A dataclass field with the metadata of one option.
 
     ``kind`` is ``"choice"``, ``"bool"``, ``"int"`` or ``"float"``; ``sequence``
     means the value is a tuple of choices (``values``).  ``minimum`` bounds numbers
-    from below (inclusive).
+    from below (inclusive).  ``methods`` names the methods the option applies to
+    (``None``: every method); setting it for another method is an error.
     """
     meta = dict(doc=doc, kind=kind, choices=None if choices is None else tuple(choices), paper=paper, tag=tag,
-                flag=flag, minimum=minimum, sequence=sequence)
+                flag=flag, minimum=minimum, sequence=sequence,
+                methods=methods if methods in (None, INSERTING) else tuple(methods))
     return field(default=default, metadata=meta)
 
 
@@ -83,66 +95,68 @@ class Options:
     tie_order: str = _option(
         "index", "order among equal quantised curvatures: 'index' (C order over (i, j, k)), 'reverse', "
         "'random' (seeded), 'centre' (nearest the centre first)",
-        kind="choice", choices=TIE_ORDERS, paper="section 3", tag="tie")
+        kind="choice", choices=TIE_ORDERS, paper="section 3", tag="tie", methods=("paper",))
     boundary_diagonals: str = _option(
         "mirrored", "face diagonals of the 12 initial boundary triangles of a box: 'kuhn' or 'mirrored' (the "
         "Kuhn split mirrored in x; matches Table 1 best, the paper does not fix them)",
-        kind="choice", choices=("mirrored", "kuhn"), paper="section 3, Definition 1", tag="diag")
+        kind="choice", choices=("mirrored", "kuhn"), paper="section 3, Definition 1", tag="diag", methods=INSERTING)
     vertices_in_error: bool = _option(
         True, "a tetrahedron's own four vertices (zero residual) count among its points in its error",
-        kind="bool", paper="Definition 2, eqs. 14-15", tag="verr")
+        kind="bool", paper="Definition 2, eqs. 14-15", tag="verr", methods=INSERTING)
     final_pass: bool = _option(
         False, "after reaching each snapshot count, swap over all tetrahedra (applied to a copy)",
-        kind="bool", paper="end of section 4", tag="final")
+        kind="bool", paper="end of section 4", tag="final", methods=INSERTING)
     first_improving: bool = _option(
         False, "apply the first improving flip of the neighbourhood O instead of the best one",
-        kind="bool", paper="section 4, step (iii)", tag="first")
+        kind="bool", paper="section 4, step (iii)", tag="first", methods=INSERTING)
     curvature: str = _option(
         "direct", "absolute-curvature estimator: 'direct' least-squares quadratic in (x, y, z), or "
         "'local-frame' (Hamann 1994b: quadratic height function over the tangent space of an estimated 4-D "
         "normal)",
-        kind="choice", choices=("direct", "local-frame"), paper="section 2, eqs. 4-10", tag="curv")
+        kind="choice", choices=("direct", "local-frame"), paper="section 2, eqs. 4-10", tag="curv",
+        methods=("paper",))
     neighbourhood: str = _option(
         "kuhn", "points of the curvature fit: 'kuhn' edge neighbours of the initial triangulation (2-ring "
         "where rank-deficient), 'two-ring' always, or 'box' (grids: the 26 grid neighbours)",
-        kind="choice", choices=("kuhn", "two-ring", "box"), paper="section 2", tag="nbhd")
+        kind="choice", choices=("kuhn", "two-ring", "box"), paper="section 2", tag="nbhd", methods=("paper",))
     ranking: str = _option(
         "curvature", "insertion order: 'curvature' (descending K, the paper), or the diagnostic orders "
         "'ascending' (K ascending), 'random' (seeded) and 'analytic' (exact K of a Table-1 function)",
-        kind="choice", choices=("curvature", "ascending", "random", "analytic"), paper="section 3", tag="rank")
+        kind="choice", choices=("curvature", "ascending", "random", "analytic"), paper="section 3", tag="rank",
+        methods=("paper",))
     rel_tol: float = _option(
         1e-9, "a flip must lower the criterion sum by more than rel_tol times the sum (plus 1e-12 of the "
         "value range), so that gains at rounding level cannot cycle",
-        kind="float", minimum=0.0, paper="section 4", tag="reltol")
+        kind="float", minimum=0.0, paper="section 4", tag="reltol", methods=INSERTING)
     quantum: float = _option(
         1e-9, "relative step to which K is rounded before sorting, so that rounding noise stays a tie",
-        kind="float", minimum=0.0, paper="section 3", tag="quantum")
+        kind="float", minimum=0.0, paper="section 3", tag="quantum", methods=("paper",))
     seed: int = _option(
         0, "seed of the random tie order and of the random ranking",
-        kind="int", minimum=0, tag="seed")
+        kind="int", minimum=0, tag="seed", methods=("paper",))
     greedy_key: str = _option(
-        "max", "greedy only: insert the point with the largest residual ('max', aims at E_inf) or the worst "
+        "max", "insert the point with the largest residual ('max', aims at E_inf) or the worst "
         "point of the tetrahedron with the largest squared-residual sum ('sse', aims at E_RMS)",
-        kind="choice", choices=("max", "sse"), tag="gkey")
+        kind="choice", choices=("max", "sse"), tag="gkey", methods=("greedy",))
     lazy_queue: bool = _option(
-        True, "decimate only: while more than twice the target count of vertices remain (and E_RMS, E_inf are "
+        True, "while more than twice the target count of vertices remain (and E_RMS, E_inf are "
         "below half of tol_rms, tol_inf), a vertex whose tetrahedra changed keeps its queued cost until it reaches "
         "the head of the queue; nearer the stop every changed vertex is costed again at once. False: that strict "
         "greedy order throughout (slower; the errors at the stop differ by a few percent either way)",
-        kind="bool", tag="lazy")
+        kind="bool", tag="lazy", methods=("decimate",))
     boundary_flips: bool | None = _option(
         None, "also flip an edge between two coplanar hull faces to the other diagonal of their "
         "quadrilateral (2-2 flip), so that the boundary's triangulation adapts too",
-        kind="bool", tag="bflip")
+        kind="bool", tag="bflip", methods=INSERTING)
     max_flips: int | None = _option(
         None, "at most this many flips (swap rounds) after each insertion; 0: until nothing improves "
         "(section 4). The final pass is never capped",
-        kind="int", minimum=0, tag="maxflips")
+        kind="int", minimum=0, tag="maxflips", methods=INSERTING)
     swap_memory: str = _option(
         "run", "how long swapping remembers the configurations it evaluated: 'run' (a fixed table of about "
         "2 N entries for the whole run) or 'call' (the swaps after one insertion); identical results under "
         "'rms' and 'max', rounding-level ties may break differently under 'sse'",
-        kind="choice", choices=("run", "call"), tag="mem")
+        kind="choice", choices=("run", "call"), tag="mem", methods=INSERTING)
     values: tuple = _option(
         ("data",), "vertex values of the approximation: the selected points' own values ('data', the paper: a "
         "true selection) and/or least-squares values over all points on the same mesh ('fit')",
@@ -151,6 +165,17 @@ class Options:
     def __post_init__(self):
         for f in fields(self):
             object.__setattr__(self, f.name, _check(f, getattr(self, f.name)))
+        from .methods import get_method
+
+        # a value other than the default is a setting: it must apply to the method (a
+        # default given explicitly cannot be told from one left out, and changes nothing;
+        # the method's own defaults, filled in by resolve(), are not settings either)
+        own = get_method(self.method).DEFAULTS
+        check_applicable([k for k, v in self.changed().items() if k not in own or own[k] != v], self.method)
+
+        check_options = getattr(get_method(self.method), "check_options", None)
+        if check_options is not None:
+            check_options(self)
 
     # -- derived
     def resolve(self) -> "Options":
@@ -193,6 +218,47 @@ def option_fields():
     return list(_FIELDS.values())
 
 
+def applies(name, method) -> bool:
+    """Whether the option ``name`` applies to ``method`` (its field's ``methods``)."""
+    return method in method_group(name)
+
+
+def method_group(name) -> tuple:
+    """The methods the option ``name`` applies to, in the order of :data:`trivsel.methods.METHODS`."""
+    methods = _FIELDS[name].metadata["methods"]
+    if methods == INSERTING:
+        from .methods import METHODS
+
+        return tuple(n for n, m in METHODS.items() if getattr(m, "INSERTS", False))
+    return methods or _method_names()
+
+
+def check_applicable(names, method):
+    """One-line InputError for the first option of ``names`` that does not apply to ``method``."""
+    for name in names:
+        if not applies(name, method):
+            only = method_group(name)
+            raise InputError(f"option {name} ({_flag(_FIELDS[name])}) applies to method"
+                             f"{'s' if len(only) > 1 else ''} {' and '.join(only)} only, not to {method}")
+
+
+def option_groups():
+    """The options grouped by the methods they apply to: a list of ``(methods, fields)``,
+    every method's options first, then by :data:`trivsel.methods.METHODS`' order."""
+    order = _method_names()
+    groups = {}
+    for f in option_fields():
+        groups.setdefault(method_group(f.name), []).append(f)
+    return sorted(groups.items(), key=lambda g: (-len(g[0]), [order.index(m) for m in g[0]]))
+
+
+def group_title(methods) -> str:
+    """How ``--help`` and the docs name a group of :func:`option_groups`."""
+    if tuple(methods) == _method_names():
+        return "every method"
+    return ("method " if len(methods) == 1 else "methods ") + " and ".join(methods) + " only"
+
+
 def _choices(f):
     return _method_names() if f.name == "method" else f.metadata["choices"]
 
@@ -207,7 +273,7 @@ def _check(f, v):
         try:
             seq = tuple(seq)
         except TypeError:
-            raise InputError(f"{name} must be a list of {', '.join(_choices(f))}, got {v!r}") from None
+            raise InputError(f"{name} must be a list of {', '.join(_choices(f))}, got {shown(v)}") from None
         if not seq:
             raise InputError(f"{name} must name at least one of {', '.join(_choices(f))}")
         for x in seq:
@@ -220,25 +286,25 @@ def _check(f, v):
     if kind == "bool":
         if isinstance(v, bool) or (isinstance(v, numbers.Integral) and v in (0, 1)):
             return bool(v)
-        raise InputError(f"{name} must be true or false, got {v!r}")
+        raise InputError(f"{name} must be true or false, got {shown(v)}")
     if kind == "int":
         if isinstance(v, bool) or not isinstance(v, numbers.Integral):
-            raise InputError(f"{name} must be an integer, got {v!r}")
+            raise InputError(f"{name} must be an integer, got {shown(v)}")
         v = int(v)
     else:
         if isinstance(v, bool) or not isinstance(v, numbers.Real):
-            raise InputError(f"{name} must be a number, got {v!r}")
+            raise InputError(f"{name} must be a number, got {shown(v)}")
         v = float(v)
         if not math.isfinite(v):
-            raise InputError(f"{name} must be finite, got {v!r}")
+            raise InputError(f"{name} must be finite, got {shown(v)}")
     if meta["minimum"] is not None and v < meta["minimum"]:
-        raise InputError(f"{name} must be >= {meta['minimum']:g}, got {v!r}")
+        raise InputError(f"{name} must be >= {meta['minimum']:g}, got {shown(v)}")
     return v
 
 
 def _check_choice(name, value, choices):
     if not isinstance(value, str) or value not in choices:
-        raise InputError(f"unknown {name} {value!r}: choose one of {', '.join(map(str, choices))}")
+        raise InputError(f"unknown {name} {shown(value)}: choose one of {', '.join(map(str, choices))}")
 
 
 # ----------------------------------------------------------------------------- command line
@@ -255,27 +321,35 @@ def _default_text(f):
     return str(f.default).lower() if isinstance(f.default, bool) else str(f.default)
 
 
-def add_arguments(parser_or_group):
-    """Add one flag per :class:`Options` field (``--tie-order``, ``--final-pass/--no-final-pass``, ...).
+def add_arguments(parser):
+    """Add one flag per :class:`Options` field (``--tie-order``, ``--final-pass/--no-final-pass``, ...),
+    in one argument group per set of methods they apply to (:func:`option_groups`).
 
     Every flag defaults to ``None`` (not given), so :func:`from_namespace` passes only
     what the user set and :class:`Options` supplies the rest."""
-    for f in option_fields():
-        meta = f.metadata
-        help_ = f"{meta['doc']} (default: {_default_text(f)})"
-        kw = dict(dest=f.name, default=None, help=help_)
-        if meta["kind"] == "bool":
-            parser_or_group.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kw)
-        elif meta["kind"] == "choice":
-            parser_or_group.add_argument(_flag(f), choices=_choices(f), nargs="+" if meta["sequence"] else None,
-                                         metavar=None, **kw)
-        else:
-            parser_or_group.add_argument(_flag(f), type=int if meta["kind"] == "int" else float, **kw)
+    for methods, group in option_groups():
+        every = tuple(methods) == _method_names()
+        g = parser.add_argument_group(f"options of {group_title(methods)}" + (
+            " (trivsel.Options; the defaults reproduce Table 1)" if every else ""))
+        for f in group:
+            meta = f.metadata
+            help_ = f"{meta['doc']} (default: {_default_text(f)})"
+            kw = dict(dest=f.name, default=None, help=help_)
+            if meta["kind"] == "bool":
+                g.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kw)
+            elif meta["kind"] == "choice":
+                g.add_argument(_flag(f), choices=_choices(f), nargs="+" if meta["sequence"] else None, **kw)
+            else:
+                g.add_argument(_flag(f), type=int if meta["kind"] == "int" else float, **kw)
 
 
 def from_namespace(ns) -> Options:
-    """:class:`Options` from parsed arguments (only the flags given override the defaults)."""
+    """:class:`Options` from parsed arguments (only the flags given override the defaults);
+    a flag given for a method it does not apply to is an InputError, even with its default value."""
     given = {f.name: getattr(ns, f.name) for f in option_fields() if getattr(ns, f.name, None) is not None}
+    method = given.get("method", _FIELDS["method"].default)
+    _check_choice("method", method, _method_names())
+    check_applicable(given, method)
     return Options(**given)
 
 
@@ -319,12 +393,14 @@ def config_schema() -> dict:
         if f.default is None:
             item = {"anyOf": [item, {"type": "null"}]}
         default = list(f.default) if meta["sequence"] else f.default
+        where = "" if meta["methods"] is None else f"; applies to {group_title(method_group(f.name))}"
         props[f.name] = {"type": "array", "items": item, "minItems": 1, "default": [default],
-                         "description": meta["doc"] + (f" ({meta['paper']})" if meta["paper"] else "")}
+                         "description": meta["doc"] + (f" ({meta['paper']})" if meta["paper"] else "") + where}
     return {"$schema": "https://json-schema.org/draft/2020-12/schema",
             "description": "Options of a reduction (generated from trivsel.options.Options by "
                            "`python -m trivsel.options`; do not edit). Every key is a list: a sweep axis; "
-                           "null takes the method's default.",
+                           "null takes the method's default. A value of an option that does not apply to a "
+                           "combination's method is left out of that combination (the option's default).",
             "type": "object", "properties": props, "additionalProperties": False}
 
 
@@ -337,24 +413,29 @@ def options_markdown() -> str:
     lines = ["# Options", "",
              "Generated from `trivsel.options.Options` by `python -m trivsel.options`; do not edit.",
              "Every option is a keyword of `trivsel.reduce` (and a field of `trivsel.Options`), a flag of",
-             "`trivsel reduce` and a sweep axis of the workflow (`reduce: options:` in `config.yaml`).", "",
-             "| option | flag | default | values | paper | what |", "|---|---|---|---|---|---|"]
-    for f in option_fields():
-        meta = f.metadata
-        flag = _flag(f)
-        if meta["kind"] == "bool":
-            flag = f"{flag} / --no-{flag[2:]}"
-        if meta["kind"] == "choice":
-            values = ", ".join(f"`{c}`" for c in _choices(f))
-        elif meta["kind"] == "bool":
-            values = "true, false"
-        else:
-            values = f"{meta['kind']} >= {meta['minimum']:g}"
-        lines.append(f"| `{f.name}` | `{flag}` | {_default_text(f)} | {values} | {meta['paper'] or '-'} "
-                     f"| {meta['doc']} |")
+             "`trivsel reduce` and a sweep axis of the workflow (`reduce: options:` in `config.yaml`).",
+             "An option applies to the methods of its group: given for another method it is refused",
+             "(`trivsel.Options` refuses a value other than the default; a workflow sweep leaves it out",
+             "of that method's runs)."]
+    for methods, group in option_groups():
+        lines += ["", f"## {group_title(methods)[0].upper()}{group_title(methods)[1:]}", "",
+                  "| option | flag | default | values | paper | what |", "|---|---|---|---|---|---|"]
+        for f in group:
+            meta = f.metadata
+            flag = _flag(f)
+            if meta["kind"] == "bool":
+                flag = f"{flag} / --no-{flag[2:]}"
+            if meta["kind"] == "choice":
+                values = ", ".join(f"`{c}`" for c in _choices(f))
+            elif meta["kind"] == "bool":
+                values = "true, false"
+            else:
+                values = f"{meta['kind']} >= {meta['minimum']:g}"
+            lines.append(f"| `{f.name}` | `{flag}` | {_default_text(f)} | {values} | {meta['paper'] or '-'} "
+                         f"| {meta['doc']} |")
     lines += ["", "Method defaults (the fields shown as \"" + METHOD_DEFAULT + "\"):", ""]
     for name, module in METHODS.items():
-        items = ", ".join(f"`{k}` = {v!r}" for k, v in module.DEFAULTS.items())
+        items = ", ".join(f"`{k}` = {v!r}" for k, v in module.DEFAULTS.items() if applies(k, name))
         lines.append(f"- `{name}`: {items}")
     return "\n".join(lines) + "\n"
 

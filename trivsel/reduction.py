@@ -18,11 +18,11 @@ from dataclasses import replace
 import numpy as np
 
 from .data import sample_grid
-from .exceptions import InputError, check_threads
+from .exceptions import InputError, check_threads, shown
 from .functions import resolve_function
 from .methods import get_method
 from .methods.protocol import Problem
-from .options import Options, option_fields
+from .options import Options, check_applicable, option_fields
 from .result import ReductionResult, Snapshot
 from .selection import validate_fractions
 
@@ -43,8 +43,12 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
     count : int, optional
         Stop at this number of points instead (also a snapshot).
     tol_rms, tol_inf : float, optional
-        Stop as soon as E_RMS (eq. 19) or E_inf (eq. 20) over all points is at or
-        below the tolerance (or when every candidate is inserted).
+        Error tolerances of E_RMS (eq. 19) and E_inf (eq. 20) over all points.  The
+        inserting methods (``paper``, ``greedy``) stop as soon as the error is at or
+        below the tolerance (or when every candidate is inserted); ``decimate`` stops
+        before a removal would raise the error above it (or when no removal is
+        left).  A fraction or count that the run does not reach first is noted in
+        :attr:`ReductionResult.notes` and logged as a warning.
     n : int
         Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
     array : str, optional
@@ -72,7 +76,9 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
         (tests pass :func:`trivsel.mesh.check_mesh`).
     progress : callable, optional
         Called about 200 times as ``progress(n_selected, n_target, e_rms, e_inf,
-        seconds)`` with the current E_RMS and E_inf over all points."""
+        seconds)`` with the current E_RMS and E_inf over all points; ``n_target`` is
+        the count the run goes to (up by insertion; ``decimate`` counts down to it
+        from the full grid, and calls first with the full grid's count)."""
 
 
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, array=None, volume=None,
@@ -95,9 +101,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     N = data.n_points
     for name, tol in (("tol_rms", tol_rms), ("tol_inf", tol_inf)):
         if tol is not None and not (np.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name} must be a finite number >= 0, got {tol!r}")
+            raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
     if count is not None and (isinstance(count, bool) or int(count) != count or not 1 <= count <= N):
-        raise InputError(f"count must be an integer in [1, {N}], got {count!r}")
+        raise InputError(f"count must be an integer in [1, {N}], got {shown(count)}")
     if not fractions and count is None and tol_rms is None and tol_inf is None:
         raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
     stop = dict(fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf)
@@ -112,7 +118,8 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     out = method.run(problem)
     return ReductionResult(data=data_in, selected=out.selected, curvature=scaling.curvature_out(out.curvature),
                            order=out.order, snapshots=[scaling.snapshot_out(s) for s in out.snapshots],
-                           options={**opts.to_dict(), **stop_in}, timings=out.timings, stats=out.stats)
+                           options={**opts.to_dict(), **stop_in}, timings=out.timings, stats=out.stats,
+                           notes=out.notes)
 
 
 
@@ -212,21 +219,28 @@ def _options(options, overrides):
     unknown = sorted(set(overrides) - {f.name for f in option_fields()})
     if unknown:
         raise TypeError(f"reduce() got an unexpected keyword argument {unknown[0]!r}")
-    return (replace(options, **overrides) if overrides else options).resolve()
+    merged = replace(options, **overrides) if overrides else options
+    # a keyword given is a setting, even at its default value
+    check_applicable([k for k, v in overrides.items() if v is not None], merged.method)
+    return merged.resolve()
 
 
 def _option_docs():
-    """The numpydoc entries of the option keywords, generated from :class:`Options`."""
-    from .options import _choices, _default_text
+    """The numpydoc entries of the option keywords, generated from :class:`Options` and
+    grouped by the methods they apply to (:func:`~trivsel.options.option_groups`)."""
+    from .options import _choices, _default_text, group_title, option_groups
 
     out = []
-    for f in option_fields():
-        meta = f.metadata
-        kind = ("{" + ", ".join(repr(c) for c in _choices(f)) + "}" if meta["kind"] == "choice" else meta["kind"])
-        if meta["sequence"]:
-            kind = f"list of {kind}"
-        ref = f" ({meta['paper']})" if meta["paper"] else ""
-        out.append(f"    {f.name} : {kind}, default {_default_text(f)}\n        {meta['doc']}{ref}.")
+    for methods, group in option_groups():
+        for f in group:
+            meta = f.metadata
+            kind = ("{" + ", ".join(repr(c) for c in _choices(f)) + "}" if meta["kind"] == "choice"
+                    else meta["kind"])
+            if meta["sequence"]:
+                kind = f"list of {kind}"
+            ref = f" ({meta['paper']})" if meta["paper"] else ""
+            out.append(f"    {f.name} : {kind}, default {_default_text(f)}; {group_title(methods)}\n"
+                       f"        {meta['doc']}{ref}.")
     return "\n".join(out)
 
 
@@ -249,6 +263,11 @@ reduce.__doc__ = f"""Select points and build the data-dependent tetrahedral mesh
     InputError
         For bad data, fractions, counts, tolerances or options, with a one-line
         message naming the value.
+
+    Notes
+    -----
+    Each option applies to the methods named after its default ("every method",
+    "method paper only", ...); giving it for another method raises InputError.
     """
 
 

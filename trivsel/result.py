@@ -60,6 +60,10 @@ class ReductionResult:
         ``errors``, and ``total``.
     stats : dict
         Insertion cases and flip counts at the end of the run.
+    notes : list of str
+        What the run could not do as asked: each requested fraction or count that it
+        did not reach (a tolerance stopped it first, or no point was left to insert or
+        remove), with the count it stopped at.  Also logged as warnings.
     """
 
     data: PointData
@@ -70,6 +74,7 @@ class ReductionResult:
     options: dict
     timings: dict
     stats: dict
+    notes: list = field(default_factory=list)
 
     def snapshot(self, fraction):
         """The snapshot for ``fraction`` (nearest match)."""

@@ -22,7 +22,7 @@ from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
-from .exceptions import InputError
+from .exceptions import InputError, shown
 
 __all__ = ["count_for_fraction", "validate_fractions", "candidate_points", "rank_candidates", "TIE_ORDERS"]
 
@@ -42,9 +42,9 @@ def validate_fractions(fractions):
         try:
             v = float(f)
         except (TypeError, ValueError):
-            raise InputError(f"fraction {f!r} is not a number") from None
+            raise InputError(f"fraction {shown(f)} is not a number") from None
         if not (0.0 < v <= 1.0) or v != v:
-            raise InputError(f"fraction {f!r} is outside (0, 1]")
+            raise InputError(f"fraction {shown(f)} is outside (0, 1]")
         out.append(v)
     return out
 
@@ -66,7 +66,7 @@ def candidate_points(n_points: int, fixed, interior_mask=None, mode: str = "all"
     if mode == "interior":
         keep &= np.asarray(interior_mask, bool)
     elif mode != "all":
-        raise InputError(f"unknown candidate set {mode!r}: choose 'all' or 'interior'")
+        raise InputError(f"unknown candidate set {shown(mode)}: choose 'all' or 'interior'")
     return np.flatnonzero(keep)
 
 
@@ -105,6 +105,6 @@ def rank_candidates(curvature, candidates, *, tie_order: str = "index", points=N
         d = np.linalg.norm(p[c] - p.mean(axis=0), axis=1)
         tie = np.round(d / (1e-9 * max(d.max(), 1e-300))).astype(np.int64) * (len(c) + 1) + np.arange(len(c))
     else:
-        raise InputError(f"unknown tie order {tie_order!r}: choose one of {', '.join(TIE_ORDERS)}")
+        raise InputError(f"unknown tie order {shown(tie_order)}: choose one of {', '.join(TIE_ORDERS)}")
     order = np.lexsort((tie, -key))
     return c[order]

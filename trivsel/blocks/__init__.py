@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import InputError
+from ..exceptions import InputError, shown
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
            "check_tetrahedra", "job_resources"]
@@ -130,7 +130,7 @@ def plan_blocks(shape, block) -> Plan:
         raise InputError(f"blocks need a 3-D grid of at least 3 points per axis, got shape {shape}")
     sizes = np.broadcast_to(np.asarray(block), (3,))
     if sizes.dtype.kind not in "iu" or np.any(sizes < 2):
-        raise InputError(f"block size must be an integer >= 2 (grid intervals per block), got {block!r}")
+        raise InputError(f"block size must be an integer >= 2 (grid intervals per block), got {shown(block)}")
     cuts = []
     for n, b in zip(shape, sizes.tolist()):
         c = list(range(0, n - 1, b)) + [n - 1]
@@ -551,7 +551,7 @@ def make_config(config):
     cfg = {k: config.get(k) for k in SOURCE_KEYS}
     tol = config.get("tol_inf")
     if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
-        raise InputError(f"tol_inf must be a finite number >= 0, got {tol!r}")
+        raise InputError(f"tol_inf must be a finite number >= 0, got {shown(tol)}")
     method = config.get("method", "greedy")
     if not get_method(method).PRESCRIBED_BOUNDARY:  # the 3-D stage starts from prescribed triangles
         able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]

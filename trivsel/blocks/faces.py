@@ -33,7 +33,7 @@ import numbers
 import numba
 import numpy as np
 
-from ..exceptions import InputError
+from ..exceptions import InputError, shown
 
 __all__ = ["reduce_polyline", "reduce_face", "check_face_mesh", "face_residuals"]
 
@@ -48,7 +48,7 @@ _NOISE = 1e-9
 def _check_tol(tol_inf) -> float:
     if isinstance(tol_inf, bool) or not isinstance(tol_inf, numbers.Real) or not np.isfinite(tol_inf) \
             or tol_inf < 0:
-        raise InputError(f"tol_inf must be a finite number >= 0, got {tol_inf!r}")
+        raise InputError(f"tol_inf must be a finite number >= 0, got {shown(tol_inf)}")
     return float(tol_inf)
 
 
@@ -590,7 +590,7 @@ def reduce_face(values, border, *, tol_inf, max_vertices=None):
         if isinstance(max_vertices, bool) or not isinstance(max_vertices, numbers.Integral) \
                 or max_vertices < least:
             raise InputError(f"max_vertices must be an integer >= {least} (the border vertices and "
-                             f"the start point), got {max_vertices!r}")
+                             f"the start point), got {shown(max_vertices)}")
     if nint == 0:
         return np.sort(ring), _canonical(_strip(f.shape, border))
     u, v = np.divmod(np.arange(nu * nv), nv)

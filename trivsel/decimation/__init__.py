@@ -356,7 +356,15 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     dec = Decimation(data.ijk, data.shape, data.values, tol_inf=tol_inf,
                      lock="all" if candidates == "interior" else "box", key=key)
     sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)
-    shots, t_errors, step, stopped, near = [], 0.0, 4096, False, False
+    shots, t_errors, step, stopped, near, code = [], 0.0, 4096, False, False, 0
+    last = min(int(t) for t in targets)  # progress counts down from the full grid to the last target
+
+    def report():
+        if progress is not None:
+            progress(dec.n_vertices, last, float(np.sqrt(max(dec.sse, 0.0) / N)), float(np.max(np.abs(dec.S.res))),
+                     time.perf_counter() - t_start)
+
+    report()
     for target in sorted(set(int(t) for t in targets), reverse=True):
         while not stopped and dec.n_vertices > target:
             stop_at = max(target, dec.n_vertices - step)
@@ -371,10 +379,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
                 near = True  # a stop is decided with exact costs only
                 continue
             stopped = code != 0
-            if progress is not None:
-                r = dec.S.res
-                progress(dec.n_vertices, target, float(np.sqrt(max(dec.sse, 0.0) / N)), float(np.max(np.abs(r))),
-                         time.perf_counter() - t_start)
+            report()
         te = time.perf_counter()
         if check is not None:
             check(dec)
@@ -395,7 +400,11 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     snaps = shots[::-1]
     for s in snaps:
         s.selected = selected[: s.n_selected].copy()
-    stats = {"collapses": int(len(removed)), "tets": int(dec.S.alive.sum())}
+    # why the run ended: the smallest target reached, or why no further collapse was made
+    why = {0: "every target was reached",
+           1: "no collapse was left" + (" that keeps every residual within tol_inf" if tol_inf is not None else ""),
+           2: "the next collapse would raise E_RMS above tol_rms"}[code]
+    stats = {"collapses": int(len(removed)), "tets": int(dec.S.alive.sum()), "stopped": why}
     return snaps, selected, stats, t_errors
 
 

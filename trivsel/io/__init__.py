@@ -59,7 +59,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import PointData, check_exact_integers, grid_from_array, plain_tuple, scattered
-from ..exceptions import InputError, one_line
+from ..exceptions import InputError, one_line, shown
 from ..resources import GRID_BYTES_PER_POINT, check_memory
 
 __all__ = ["READERS", "MANIFEST", "TMP_PREFIX", "load", "from_object", "save_npz", "check_output_dir",
@@ -669,7 +669,7 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
     if volume is None:
         return reader(p, array)
     if isinstance(volume, bool) or not isinstance(volume, numbers.Integral):
-        raise InputError(f"volume must be an integer, got {volume!r}")
+        raise InputError(f"volume must be an integer, got {shown(volume)}")
     if "volume" not in inspect.signature(reader).parameters:
         raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
     return reader(p, array, volume=int(volume))
@@ -1197,6 +1197,7 @@ def _write_into(result, tmp, extra):
         "options": result.options,
         "timings": result.timings,
         "stats": result.stats,
+        "notes": result.notes,
         "snapshots": [{"fraction": s.fraction, "n_selected": s.n_selected, "errors": s.errors,
                        "seconds": s.seconds, "n_tets": int(len(s.tets)), "flips": s.flips}
                       for s in result.snapshots],

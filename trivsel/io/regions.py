@@ -54,7 +54,7 @@ from pathlib import Path
 import numpy as np
 
 from ..data import PointData, check_exact_integers, check_grid_geometry
-from ..exceptions import InputError, one_line
+from ..exceptions import InputError, one_line, shown
 
 __all__ = ["Volume", "RegionData", "open_volume", "check_region", "convert"]
 
@@ -76,7 +76,7 @@ def check_region(region, shape) -> tuple:
         pairs = []
     if len(pairs) != 3 or any(len(r) != 2 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool)
                                                     for v in r) for r in pairs):
-        raise InputError(f"a region must be three (start, stop) pairs of integers, got {region!r}")
+        raise InputError(f"a region must be three (start, stop) pairs of integers, got {shown(region)}")
     out = tuple((int(a), int(b)) for a, b in pairs)
     for axis, ((a, b), n) in enumerate(zip(out, shape)):
         if not 0 <= a < b <= n:
@@ -261,7 +261,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     if (path is None) == (function is None):
         raise InputError("give either an input file or a function (not both)")
     if volume is not None and (isinstance(volume, bool) or not isinstance(volume, numbers.Integral)):
-        raise InputError(f"volume must be an integer, got {volume!r}")
+        raise InputError(f"volume must be an integer, got {shown(volume)}")
     if function is not None:
         if array is not None or volume is not None:
             raise InputError(f"--{'array' if array is not None else 'volume'} applies to input files, "
@@ -297,7 +297,7 @@ def _function_volume(function, n):
 
     num = resolve_function(function)
     if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 2:
-        raise InputError(f"grid resolution n must be an integer >= 2, got {n!r}")
+        raise InputError(f"grid resolution n must be an integer >= 2, got {shown(n)}")
     n = int(n)
 
     def coords(ijk):
@@ -331,7 +331,7 @@ def _attribute_vector(p, attrs, key, default):
     ok = v.shape == (3,) and np.all(np.isfinite(v)) and (key != "spacing" or np.all(v > 0))
     if not ok:
         need = "3 positive finite numbers" if key == "spacing" else "3 finite numbers"
-        raise InputError(f"{str(p)!r}: attribute {key!r} must be {need}, got {value!r}")
+        raise InputError(f"{str(p)!r}: attribute {key!r} must be {need}, got {shown(value)}")
     return v
 
 
@@ -364,7 +364,7 @@ def _zarr_volume(p, array, volume):
             assert len(file_ids[1]) == 3
         except (KeyError, TypeError, ValueError, AssertionError):
             raise InputError(f"{str(p)!r}: attribute 'file_index' must be {{'base': int, 'strides': [3 ints]}}, "
-                             f"got {ids!r}") from None
+                             f"got {shown(ids)}") from None
     meta = attrs.get("meta") if isinstance(attrs.get("meta"), dict) else {}
     return Volume(shape=shape, origin=_attribute_vector(p, attrs, "origin", [0.0] * 3),
                   spacing=_attribute_vector(p, attrs, "spacing", [1.0] * 3), name=attrs.get("name", p.stem),
@@ -569,7 +569,7 @@ def _stored_dtype(p, array):
 def _check_chunks(chunks):
     c = (chunks,) * 3 if isinstance(chunks, numbers.Integral) else tuple(chunks)
     if len(c) != 3 or not all(isinstance(v, numbers.Integral) and not isinstance(v, bool) and v >= 1 for v in c):
-        raise InputError(f"chunks must be an integer >= 1 or three of them, got {chunks!r}")
+        raise InputError(f"chunks must be an integer >= 1 or three of them, got {shown(chunks)}")
     return tuple(int(v) for v in c)
 
 

@@ -99,12 +99,10 @@ def entry_signatures(S, kernel):
 
 def _cached(fn, sig):
     """Whether numba's on-disk cache holds ``fn`` compiled for ``sig`` on this machine
-    (reads the cache's index only; ``False`` if it cannot tell)."""
-    try:
-        cache = fn._cache
-        return cache._index_key(sig, fn.targetctx.codegen()) in cache._cache_file._load_index()
-    except Exception:  # another numba's internals: pin, as without a cache
-        return False
+    (:func:`trivsel.aot.in_cache`; ``False`` if it cannot tell: pin, as without a cache)."""
+    from ..aot import in_cache
+
+    return in_cache(fn, sig)
 
 
 def pin_signatures(S):
@@ -227,6 +225,8 @@ def compile_kernels(method="paper", part=None):
     st = typeof(S)
     helpers = helper_signatures(S)
     plan = _plan(S, method, part, helpers)
+    if not all(_cached(fn, sig) for fn, sig in plan):
+        aot.compile_notice(method if part is None else f"{method} (part {part})")
     pinned = {fn for fn, _ in helpers}
     for fn, sig in plan:
         if fn in pinned:

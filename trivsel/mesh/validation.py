@@ -20,6 +20,7 @@ from fractions import Fraction
 
 import numpy as np
 
+from ..exceptions import shown
 from ..triangulation import orient3d_float
 from .geometry import _locate_in
 
@@ -87,7 +88,7 @@ def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rt
     extent = max(float(np.min(hi - lo)), 1e-300)
     tol = max(rtol * 10, 64 * np.finfo(float).eps * float(np.max(np.abs(P))) / extent)
     if abs(vol - hull_volume) > tol * max(hull_volume, 1e-300):
-        raise MeshInvalid(f"total volume {vol!r} differs from the hull volume {hull_volume!r}")
+        raise MeshInvalid(f"total volume {shown(vol)} differs from the hull volume {shown(hull_volume)}")
     # 3. faces and links
     alive = S.alive
     faces = {}

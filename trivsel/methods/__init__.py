@@ -14,6 +14,9 @@ through the same few names.  A method is a module that defines
 ``check(data, options)``
     a one-line :class:`~trivsel.exceptions.InputError` for option combinations it
     cannot run on ``data``;
+``check_options(options)``, optional
+    a one-line InputError for option values the method cannot take whatever the data
+    (:class:`~trivsel.options.Options` calls it);
 ``memory(data, options) -> [(bytes, what), ...]``
     its peak memory, checked against what is available before any work;
 ``run(problem) -> MethodRun``
@@ -22,7 +25,8 @@ through the same few names.  A method is a module that defines
 ``compile_kernels(part=None) -> int``
     compile (or load) its kernels once per machine (``trivsel compile``).
 
-The insertion methods (``paper``, ``greedy``) share the top-down run of
+The insertion methods (``paper``, ``greedy``; ``INSERTS = True``: the insertion and swap
+options of :class:`~trivsel.options.Options` apply to them) share the top-down run of
 :mod:`trivsel.methods.insertion` and the kernels of :mod:`trivsel.mesh`, and define
 for it ``GREEDY_QUEUE`` (whether the mesh keeps the per-tetrahedron candidate queue of
 error-driven insertion), ``KERNEL`` (the driver compiled into
@@ -35,7 +39,7 @@ Adding a method is one module here and one line in :data:`METHODS`.
 
 from __future__ import annotations
 
-from ..exceptions import InputError
+from ..exceptions import InputError, shown
 from . import decimate, greedy, paper
 
 __all__ = ["METHODS", "get_method"]
@@ -49,4 +53,4 @@ def get_method(name):
     try:
         return METHODS[name]
     except (KeyError, TypeError):
-        raise InputError(f"unknown method {name!r}: choose one of {', '.join(METHODS)}") from None
+        raise InputError(f"unknown method {shown(name)}: choose one of {', '.join(METHODS)}") from None

@@ -18,11 +18,11 @@ import time
 import numpy as np
 
 from ..exceptions import InputError
-from .protocol import MethodRun, requested_fractions
+from .protocol import MethodRun, requested_fractions, unreached
 
 NAME = "decimate"
-#: No insertion and no swapping: the swap options keep their greedy values, unused.
-DEFAULTS = {"criterion": "sse", "boundary_flips": False, "max_flips": 0}
+#: No insertion and no swapping: the swap options do not apply (they stay None).
+DEFAULTS = {"criterion": "sse"}
 GREEDY_QUEUE = False
 KERNEL = "decimate"
 #: The collapses start from the full grid's Kuhn split; a prescribed boundary is not supported.
@@ -38,13 +38,16 @@ def needs_curvature(options):
     return False
 
 
-def check(data, options):
-    """Grid data only (the collapses are tested on integer grid coordinates); the criterion
-    orders the collapses: ``sse`` (the default) by the change of the squared error, ``max``
-    by the largest residual of the points that move."""
+def check_options(options):
+    """The criterion orders the collapses: ``sse`` (the default) by the change of the squared
+    error, ``max`` by the largest residual of the points that move; not ``rms``."""
     if options.criterion == "rms":
         raise InputError("method 'decimate' orders collapses by criterion 'sse' (E_RMS) or 'max' (E_inf), "
                          "got 'rms'")
+
+
+def check(data, options):
+    """Grid data only (the collapses are tested on integer grid coordinates)."""
     if not data.is_grid:
         raise InputError("method 'decimate' needs grid data (a .vti, NIfTI, NRRD or array volume); "
                          "scattered points: use 'greedy' or 'paper'")
@@ -90,9 +93,10 @@ def run(problem):
         values=opts.values, interior=interior, check=problem.check, progress=problem.progress,
         t_start=problem.t_start)
     requested_fractions(snaps, stop["fractions"], N)
+    notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
     t_total = time.perf_counter() - problem.t_start
     timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
     fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
     order = selected[~fixed[selected]]
     return MethodRun(snapshots=snaps, selected=snaps[-1].selected, curvature=None, order=order,
-                     timings=timings, stats=stats)
+                     timings=timings, stats=stats, notes=notes)

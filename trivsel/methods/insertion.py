@@ -33,7 +33,7 @@ from ..result import Snapshot
 from ..selection import candidate_points
 from ..triangulation import (box_tetrahedra, boundary_cone, check_closed_surface, cube_corners, delaunay_tetrahedra,
                              hull_triangles, scattered_start)
-from .protocol import MethodRun, requested_fractions
+from .protocol import MethodRun, requested_fractions, unreached
 
 __all__ = ["run_insertion", "insertion_memory", "insertion_protocol"]
 
@@ -159,7 +159,17 @@ def run_insertion(method, problem):
     timings = {"curvature": t_curv, "selection": t_total - t_curv - run.t_errors, "errors": run.t_errors,
                "total": t_total}
     inserted = np.asarray(run.inserted, np.int64)
-    return MethodRun(snapshots=run.snapshots, selected=run.snapshots[-1].selected, curvature=K,
+    last = run.snapshots[-1]  # errors and tolerances both in the units of the data
+    if stop["tol_rms"] is not None and last.errors["E_rms"] <= stop["tol_rms"]:
+        reason = "E_RMS <= tol_rms was met"
+    elif stop["tol_inf"] is not None and last.errors["E_inf"] <= stop["tol_inf"]:
+        reason = "E_inf <= tol_inf was met"
+    elif last.n_selected == n_max:
+        reason = "every selectable point was inserted"
+    else:
+        reason = "no candidate was left to insert"
+    notes = unreached(stop, N, last.n_selected, reason, up=True)
+    return MethodRun(snapshots=run.snapshots, selected=run.snapshots[-1].selected, curvature=K, notes=notes,
                      order=order if K is not None else inserted, timings=timings, stats=run.stats)
 
 

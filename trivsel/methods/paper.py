@@ -22,6 +22,8 @@ GREEDY_QUEUE = False
 KERNEL = "paper"
 #: A prescribed boundary (section 3's start from given triangles) is supported.
 PRESCRIBED_BOUNDARY = True
+#: It inserts points and swaps (the insertion and swap options apply).
+INSERTS = True
 
 #: ``run``, ``memory`` and ``compile_kernels``: the top-down run of :mod:`trivsel.methods.insertion`.
 run, memory, compile_kernels = insertion_protocol(__name__)

@@ -9,14 +9,15 @@ The block stages (:mod:`trivsel.blocks`) go through the same call.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import logging
+from dataclasses import dataclass, field
 from typing import Callable
 
 import numpy as np
 
 from ..selection import count_for_fraction
 
-__all__ = ["Problem", "MethodRun", "target_counts", "requested_fractions"]
+__all__ = ["Problem", "MethodRun", "target_counts", "requested_fractions", "unreached"]
 
 
 @dataclass
@@ -78,6 +79,8 @@ class MethodRun:
         Seconds for ``curvature``, ``selection``, ``errors`` and ``total``.
     stats : dict
         The method's counters (flips, collapses, tetrahedra).
+    notes : list of str
+        The requested counts the run did not reach, and why (:func:`unreached`).
     """
 
     snapshots: list
@@ -86,6 +89,7 @@ class MethodRun:
     order: np.ndarray
     timings: dict
     stats: dict
+    notes: list = field(default_factory=list)
 
 
 def target_counts(fractions, count, n_points):
@@ -104,3 +108,18 @@ def requested_fractions(snapshots, fractions, n_points):
         if s.n_selected in req:
             s.fraction = req[s.n_selected]
 
+
+
+def unreached(stop, n_points, stopped_at, reason, *, up):
+    """One note, logged as a warning, per fraction or count of ``stop`` that a run stopping at
+    ``stopped_at`` points did not reach (counting ``up`` by insertion, else down)."""
+    asked = [(f"fraction {f:g} ({count_for_fraction(f, n_points)} points)", count_for_fraction(f, n_points))
+             for f in stop["fractions"]]
+    if stop["count"] is not None:
+        asked.append((f"count {int(stop['count'])}", int(stop["count"])))
+    notes = []
+    for what, m in asked:
+        if (m > stopped_at) if up else (m < stopped_at):
+            notes.append(f"{what} not reached: the run stopped at {stopped_at} points ({reason})")
+            logging.getLogger("trivsel").warning("warning: %s", notes[-1])
+    return notes

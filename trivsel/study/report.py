@@ -28,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from ..functions import FUNCTIONS
-from ..options import option_fields
+from ..options import applies, option_fields
 from . import ablation as _abl
 from .published import PUBLISHED_SOURCE, function_label, load_published
 from ..norms import face_residual_rms
@@ -55,6 +55,7 @@ TABLE1_COLUMNS = [
 
 #: Reduction options recorded per run (the workflow's sweepable keys).
 OPTION_KEYS = [f.name for f in option_fields()]
+_OPTION_NAMES = set(OPTION_KEYS)
 
 def read_errors(paths) -> pd.DataFrame:
     """Concatenate ``errors.csv`` files (one per function) into one DataFrame."""
@@ -235,8 +236,10 @@ def table1_markdown(table: pd.DataFrame, tol: float = 0.10, n: int | None = None
     if options:
         lines.append("## Options used")
         lines.append("")
+        method = options.get("method")
         for k, v in options.items():
-            lines.append(f"- `{k}`: {_fmt_value(v)}")
+            if method is None or k not in _OPTION_NAMES or applies(k, method):  # not those of other methods
+                lines.append(f"- `{k}`: {_fmt_value(v)}")
         lines.append("")
 
     lines.append("## Source of the published values")

@@ -15,7 +15,7 @@ from snakemake.exceptions import WorkflowError
 
 from trivsel.exceptions import InputError
 from trivsel.methods import get_method
-from trivsel.options import Options, config_schema, option_fields, variant_tag
+from trivsel.options import Options, applies, config_schema, method_group, option_fields, variant_tag
 from trivsel.selection import count_for_fraction
 
 
@@ -69,16 +69,30 @@ def canonical_options(options):
 def build_variants(option_lists):
     """tag -> trivsel.Options for every combination of the option lists (config order).
 
-    Built when the workflow loads, so a bad value stops it before any job runs with
-    the one-line message of trivsel.InputError."""
+    An option that does not apply to a combination's method (trivsel.options.applies)
+    takes its default in that combination, so that e.g. `method: [paper, greedy]` with
+    `curvature: [direct, local-frame]` runs greedy once; a value that applies to none of
+    the swept methods is refused.  Built when the workflow loads, so a bad value stops it
+    before any job runs with the one-line message of trivsel.InputError."""
     names = list(option_lists)
-    variants = {}
+    variants, used = {}, set()
     for combo in itertools.product(*(option_lists[k] for k in names)):
+        chosen = dict(zip(names, combo))
+        method = chosen.get("method", _FIELD_DEFAULTS["method"])
+        kept = {k: v for k, v in chosen.items() if k == "method" or applies(k, method)}
+        used.update((k, repr(v)) for k, v in kept.items())
         try:
-            options = canonical_options(Options(**dict(zip(names, combo))))
+            options = canonical_options(Options(**kept))
         except InputError as exc:
             raise WorkflowError(f"config reduce: options: {exc}") from None
         variants.setdefault(variant_tag(options), options)
+    for k in names:
+        for v in option_lists[k]:
+            if v != _FIELD_DEFAULTS[k] and v is not None and (k, repr(v)) not in used:
+                methods = sorted({str(m) for m in option_lists.get("method", [_FIELD_DEFAULTS["method"]])})
+                raise WorkflowError(f"config reduce: options: {k}: {v!r} applies to "
+                                    f"{' and '.join(method_group(k))} only, not to the swept method(s) "
+                                    f"{', '.join(methods)}")
     return variants
 
 

@@ -1,12 +1,14 @@
 """Rule readme: put the produced Table 1 and Fig. 4 where the README shows them.
 
-Copies results/report/table1.md and the function-2 slice figure to docs/, and
+Copies results/report/table1.md (without its run times, which differ from run to run)
+and the function-2 slice figure (only when its pixels changed) to docs/, so that a rerun
+leaves the tracked files as they were, and
 replaces the text between the table1 markers of README.md with Table 1 (the
 main table and the summary line of table1.md).  With the methods comparison on
 (input ``methods_md``) it also replaces the text between the methods markers of
 docs/methods.md with the summary part of results/report/methods.md (the files
 are the rule's ``docs`` parameter).  A block whose markers are missing is left
-alone.
+alone.  The rule's output lists what changed.
 """
 
 import re
@@ -38,13 +40,48 @@ def replace_block(text, name, body):
         return text
     head, rest = text.split(begin, 1)
     _, tail = rest.split(end, 1)
-    print(f"updated the {name} block")
     return f"{head}{begin}\n{body}\n{end}{tail}"
 
 
-shutil.copyfile(sm.input.table_md, sm.output.table_md)
-shutil.copyfile(sm.input.figure, sm.output.figure)
-print(f"copied {sm.input.table_md} -> {sm.output.table_md}, {sm.input.figure} -> {sm.output.figure}")
+def without_section(text, title):
+    """``text`` without its Markdown section ``title`` (from that heading to the next ``## ``)."""
+    head, sep, rest = text.partition(f"\n{title}\n")
+    if not sep:
+        return text
+    _, nxt, tail = rest.partition("\n## ")
+    return head + ("\n## " + tail if nxt else "\n")
+
+
+def same_pixels(a, b):
+    """Whether two PNG files hold the same image (the encoder's settings aside)."""
+    if not Path(b).is_file():
+        return False
+    import numpy as np
+    from PIL import Image
+
+    with Image.open(a) as x, Image.open(b) as y:
+        return x.size == y.size and x.mode == y.mode and np.array_equal(np.asarray(x), np.asarray(y))
+
+
+done = []  # what changed, for the rule's output
+
+
+def write_if_changed(path, text):
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.is_file() or path.read_text() != text:
+        path.write_text(text)
+        done.append(f"wrote {path}")
+    else:
+        print(f"{path} unchanged")
+
+
+write_if_changed(sm.params.table_md, without_section(Path(sm.input.table_md).read_text(), "## Run times"))
+if same_pixels(sm.input.figure, sm.params.figure):
+    print(f"{sm.params.figure} unchanged (same pixels as {sm.input.figure})")
+else:
+    shutil.copyfile(sm.input.figure, sm.params.figure)
+    done.append(f"copied {sm.input.figure} -> {sm.params.figure}")
 
 blocks = {"table1": summary(sm.input.table_md)}
 methods_md = list(sm.input.methods_md) if "methods_md" in sm.input.keys() else []
@@ -60,4 +97,9 @@ for name, body in blocks.items():
     new = replace_block(text, name, body)
     if new != text:
         doc.write_text(new)
-        print(f"wrote {doc}")
+        done.append(f"wrote the {name} block of {doc}")
+    else:
+        print(f"the {name} block of {doc} unchanged")
+
+print("\n".join(done) or "nothing changed")
+Path(sm.output.done).write_text("".join(line + "\n" for line in done) or "nothing changed\n")
