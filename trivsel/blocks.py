@@ -42,10 +42,12 @@ from pathlib import Path
 
 import numpy as np
 
+from . import slurm
 from .exceptions import InputError
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
-           "check_tetrahedra", "job_resources"]
+           "check_tetrahedra", "job_resources",
+           "group_components"]
 
 #: The volume's source, as :func:`trivsel.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
@@ -388,6 +390,26 @@ def job_resources(plan, kind, item=None, *, merged=True):
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
 
 
+#: Grid points a cluster job should hold at least: a cluster spends seconds scheduling each job
+#: (about 8 s on a single-node SLURM), so plane and block jobs smaller than this are run several
+#: to a cluster job (Snakemake's group jobs; :func:`group_components`).
+MIN_CLUSTER_JOB_POINTS = 2_000_000
+
+
+def group_components(plan, *, min_points=MIN_CLUSTER_JOB_POINTS):
+    """How many jobs of each group of the blocked workflow one cluster job runs, as Snakemake's
+    ``--group-components`` takes them: ``{"planes": P, "blocks": B}``, enough jobs for their
+    points to reach ``min_points`` (at most all of them, at least one), evened out over the
+    cluster jobs."""
+    planes = [plan.shape[u] * plan.shape[v] for u, v in (_others(a) for a, _ in plan.planes())]
+    blocks = [int(np.prod([r[1] - r[0] for r in plan.block_region(b)])) for b in plan.blocks()]
+    out = {}
+    for name, n in (("planes", planes), ("blocks", blocks)):
+        per_job = min(len(n), max(1, int(np.ceil(min_points / np.mean(n)))))
+        out[name] = int(np.ceil(len(n) / np.ceil(len(n) / per_job)))
+    return out
+
+
 # ----------------------------------------------------------------------------- jobs (files)
 #
 # The folder of a blocked run:
@@ -621,9 +643,15 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False):
     if importlib.util.find_spec("snakemake") is None:
         raise InputError("trivsel blocks runs on Snakemake, which is not installed: "
                          "pip install 'trivsel[workflow]'")
-    write_config(out, config)
+    plan = Plan.from_dict(write_config(out, config)["plan"])
     out = Path(out).resolve()
     base = [sys.executable, "-m", "snakemake", "--snakefile", str(SNAKEFILE), "--directory", str(out)]
+    # batch small jobs on a cluster; name the SLURM jobs after the folder, so that they can be
+    # found and cancelled (Snakemake's arguments given after `--` come later and win)
+    extra = ["--group-components", *(f"{k}={v}" for k, v in group_components(plan).items())]
+    prefix = slurm.job_prefix(out) if importlib.util.find_spec("snakemake_executor_plugin_slurm") else None
+    if prefix:
+        extra += ["--slurm-jobname-prefix", prefix]
     with open(out / _RUN_LOCK, "w") as lock:
         try:
             fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
@@ -631,9 +659,41 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False):
             raise InputError(f"another trivsel blocks run is working in {out}") from None
         if any((out / ".snakemake" / "locks").glob("*")):  # left by a killed run
             subprocess.run(base + ["--unlock"], capture_output=True, check=False)
-        cmd = base + ["--cores", str(cores), "--rerun-incomplete", *(["--dry-run"] if dry_run else []),
+        cmd = base + ["--cores", str(cores), "--rerun-incomplete", *(["--dry-run"] if dry_run else []), *extra,
                       *snakemake_args]
-        return subprocess.run(cmd, check=False).returncode
+        if dry_run or not prefix:
+            return subprocess.run(cmd, check=False).returncode
+        return _run_with_slurm_jobs(cmd, out, prefix)
+
+
+def _run_with_slurm_jobs(cmd, out, prefix):
+    """Run Snakemake (``cmd``) in ``out`` where its jobs may go to SLURM as ``prefix_*``: first
+    cancel the jobs a killed earlier run in the folder left queued or running (this run holds
+    the folder, so no live run owns them); cancel this run's jobs when it is interrupted; and
+    after a failed run, name its first SLURM job that ended without success, in one line."""
+    import subprocess
+    import sys
+    import time
+
+    stale = slurm.cancel_jobs(prefix)
+    if stale:
+        print(f"trivsel: cancelled {len(stale)} SLURM job(s) left by an earlier run in {out}: "
+              f"{' '.join(stale)}", file=sys.stderr)
+    started = time.time()
+    try:
+        rc = subprocess.run(cmd, check=False).returncode
+    except KeyboardInterrupt:
+        slurm.cancel_jobs(prefix)
+        raise
+    failed = slurm.failed_jobs(prefix, started) if rc else []
+    if failed:
+        job, state, comment = failed[0]
+        logs = sorted((out / ".snakemake" / "slurm_logs").rglob(f"{job}.log"))
+        print(f"trivsel: error: SLURM job {job}{f' ({comment})' if comment else ''} ended {state}"
+              f"{f', log {logs[0]}' if logs else ''}"
+              f"{f' ({len(failed) - 1} more failed)' if len(failed) > 1 else ''}; "
+              f"run the same command again to resume", file=sys.stderr)
+    return rc
 
 
 def main(argv=None):
