@@ -14,6 +14,11 @@ memory, a real volume, and the plan of a 1025^3 run.
     python benchmarks/bench_blocks.py local --input VOL.zarr [--n 47] [--blocks 8 12 47] [--tols 8 10]
         Block size as a regulariser: the stages on a crop for several block sizes and
         tolerances, against greedy over the whole crop at the same vertex count.
+    python benchmarks/bench_blocks.py slurm [--n 256] [--block 64] [--tol 0.002] [--cores 2] [--ungrouped]
+        The same ``trivsel blocks`` run locally (``-c cores``) and through the SLURM profile
+        (the loopback SLURM of scripts/slurm-local.sh, which must be running): wall times, cluster
+        jobs submitted, and the two results compared.  ``--ungrouped`` adds a SLURM run with one
+        cluster job per plane and per block (``--group-components planes=1 blocks=1``).
     python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
         The jobs and resources of a 1025^3 run (``-n``; the .pvtu output, no merged .vtu,
         which would need tens of GB in one job at this size), and its core-hours estimated from
@@ -201,6 +206,43 @@ def icbm(a):
     _report_run(out, wall, shape)
 
 
+def slurm(a):
+    import os
+
+    from trivsel.blocks import group_components, plan_blocks
+
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    args = ["--function", str(a.function), "--n", str(a.n), "--block", str(a.block), "--tol-inf", str(a.tol),
+            "--no-merged"]
+    on_slurm = ["--", "--executor", "slurm", "--workflow-profile", str(profile), "--jobs", "100",
+                "--slurm-init-seconds-before-status-checks", "5"]
+    plan_ = plan_blocks((a.n + 1,) * 3, a.block)
+    print(f"f{a.function}, n {a.n}, blocks of {a.block}: {len(plan_.blocks())} blocks, {len(plan_.planes())} planes; "
+          f"group_components {group_components(plan_)}; -c {a.cores}; load average before "
+          f"{os.getloadavg()[0]:.1f}")
+    runs = [("local", []), ("slurm, grouped", on_slurm)]
+    if a.ungrouped:
+        runs.append(("slurm, one job per plane and block", on_slurm + ["--group-components", "planes=1", "blocks=1"]))
+    results = {}
+    for name, extra in runs:
+        out = RESULTS / f"slurm_f{a.function}_n{a.n}_b{a.block}_{name.split(',')[0]}{len(results)}"
+        shutil.rmtree(out, ignore_errors=True)
+        cmd = [sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(out), "-c", str(a.cores), *extra]
+        t0 = time.perf_counter()
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        wall = time.perf_counter() - t0
+        if r.returncode != 0:
+            sys.exit(f"{name}: trivsel blocks failed ({r.returncode}):\n{r.stderr[-4000:]}")
+        jobs = len(set(re.findall(r"submitted with SLURM jobid (\d+)", r.stdout + r.stderr)))
+        block_s = sum(row["s"] for row in job_table(out) if row["rule"] == "block")
+        results[name] = {"summary": (out / "summary.json").read_text(), "tets": [
+            np.load(p)["tets"].tobytes() for p in sorted((out / "pieces").glob("*.npz"))]}
+        print(f"{name}: {wall:.0f} s wall, {jobs} SLURM jobs, block jobs' own seconds {block_s:.0f}, "
+              f"load average {os.getloadavg()[0]:.1f}", flush=True)
+    first = next(iter(results.values()))
+    print("results identical:", all(r == first for r in results.values()))
+
+
 def plan(a):
     from trivsel.blocks import item_name, plan_blocks, read_config
 
@@ -238,7 +280,7 @@ def plan(a):
 
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("what", choices=["seams", "big", "icbm", "plan", "local"])
+    ap.add_argument("what", choices=["seams", "big", "icbm", "plan", "local", "slurm"])
     ap.add_argument("--function", type=int, default=4)
     ap.add_argument("--n", type=int)
     ap.add_argument("--block", type=int)
@@ -248,13 +290,14 @@ def main():
     ap.add_argument("--input", help="seams, local: a volume (e.g. a .zarr) whose central (n+1)^3 crop is reduced")
     ap.add_argument("--blocks", type=int, nargs="+", default=[8, 12, 47], help="local: block sizes")
     ap.add_argument("--tols", type=float, nargs="+", default=[8.0, 10.0], help="local: E_inf tolerances")
+    ap.add_argument("--ungrouped", action="store_true", help="slurm: also one cluster job per plane and block")
     a = ap.parse_args()
     defaults = {"seams": (128, 32, 0.002), "big": (256, 64, 0.002), "icbm": (None, 64, 8.0),
-                "plan": (1024, 128, 0.002), "local": (47, None, None)}[a.what]
+                "plan": (1024, 128, 0.002), "local": (47, None, None), "slurm": (256, 64, 0.002)}[a.what]
     a.n = a.n if a.n is not None else defaults[0]
     a.block = a.block if a.block is not None else defaults[1]
     a.tol = a.tol if a.tol is not None else defaults[2]
-    {"seams": seams, "big": big, "icbm": icbm, "plan": plan, "local": local}[a.what](a)
+    {"seams": seams, "big": big, "icbm": icbm, "plan": plan, "local": local, "slurm": slurm}[a.what](a)
 
 
 if __name__ == "__main__":

@@ -310,25 +310,48 @@ def test_blocks_refuses_a_folder_with_another_configuration(tmp_path):
         write_config(tmp_path, {"function": 4, "n": 8, "block": 4, "tol_inf": 0.2})
 
 
+@pytest.mark.parametrize("n, block, planes, blocks", [
+    (16, 8, 9, 8),        # small: every plane in one cluster job, every block in one
+    (256, 64, 15, 8),     # 64 blocks of 65^3 points: 8 to a cluster job
+    (128, 32, 15, 32),    # 33^3 points a block: 2 M points reached at 56, evened out to 2 x 32
+    (1024, 128, 2, 1),    # a block of 129^3 points is a cluster job of its own
+])
+def test_group_components_batch_small_jobs(n, block, planes, blocks):
+    from trivsel.blocks import MIN_CLUSTER_JOB_POINTS, group_components
+
+    plan = plan_blocks((n + 1,) * 3, block)
+    assert group_components(plan) == {"planes": planes, "blocks": blocks}
+    # a smaller minimum makes smaller cluster jobs; one point a job, one job each
+    assert group_components(plan, min_points=1) == {"planes": 1, "blocks": 1}
+    assert group_components(plan, min_points=MIN_CLUSTER_JOB_POINTS // 4)["blocks"] <= blocks
+
+
 @pytest.mark.slurm
 def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     """A blocked run through `--executor slurm` and the unchanged workflow profile: every
-    job (kernels, lines, planes, blocks, merge) goes through sbatch, sacct lists each one
-    COMPLETED, and every result equals a local run's."""
+    job (kernels, lines, planes, blocks, merge) goes through sbatch, batched into as many
+    cluster jobs as `group_components` says (kernels and lines one, the planes and the blocks
+    of this small grid one each, the merge one), sacct lists each one COMPLETED, and every
+    result equals a local run's."""
+    import math
     from pathlib import Path
 
     from conftest import sacct_rows
+
+    from trivsel.blocks import group_components
 
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     r = run_blocks(tmp_path / "slurm", "--", "--executor", "slurm", "--workflow-profile", str(profile), "--jobs", "4",
                    "--slurm-init-seconds-before-status-checks", "5")
     output = r.stdout + r.stderr
     assert r.returncode == 0, output[-5000:]
-    submitted = dict(re.findall(r"Job (\d+) has been submitted with SLURM jobid (\d+)", output))
-    remote_rules = re.findall(r"^rule (\w+):$", output, flags=re.M)
-    assert submitted and len(submitted) == len(remote_rules), output[-5000:]
-    assert {"kernels", "lines", "plane", "block", "merge"} <= set(remote_rules), remote_rules
-    ids = sorted(submitted.values(), key=int)
+    ids = sorted(set(re.findall(r"has been submitted with SLURM jobid (\d+)", output)), key=int)
+    _, plan = read_config(tmp_path / "slurm")
+    groups = group_components(plan)
+    n_jobs = 1 + math.ceil(len(plan.planes()) / groups["planes"]) + math.ceil(len(plan.blocks()) / groups["blocks"]) + 1
+    assert len(ids) == n_jobs == 4, output[-5000:]
+    remote_rules = re.findall(r"^\s*rule (\w+):$", output, flags=re.M)  # grouped jobs are indented
+    assert sorted(set(remote_rules)) == ["block", "kernels", "lines", "merge", "plane"], remote_rules
     fields = ["JobID", "JobName", "State", "ExitCode"]
     rows = sacct_rows(ids, fields)
     assert set(rows) == set(ids), (ids, rows)
@@ -337,6 +360,65 @@ def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     local = run_blocks(tmp_path / "local", "-c", "2")
     assert local.returncode == 0, local.stderr[-3000:]
     assert result_files(tmp_path / "slurm") == result_files(tmp_path / "local")
+
+
+@pytest.mark.slurm
+def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm):
+    """A block job cancelled with scancel while it runs: the run ends within a bounded time (not
+    the wait for ever of a state polled from sacct), its last line names the job and CANCELLED,
+    no job of the folder is left in the queue, and the same command run again completes, with
+    every job it submitted COMPLETED and the result of a local run."""
+    import os
+    import signal
+    import time
+    from pathlib import Path
+
+    from conftest import sacct_rows
+
+    from trivsel.blocks.slurm import active_jobs, job_prefix
+
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    out = tmp_path / "slurm"
+    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
+           "--tol-inf", "0.01", "--out", str(out), "--", "--executor", "slurm", "--workflow-profile", str(profile),
+           "--jobs", "4", "--slurm-init-seconds-before-status-checks", "5"]
+    prefix = job_prefix(out)
+    log = tmp_path / "first.log"
+    with open(log, "w") as fh:  # no retry, so that the cancelled job ends the run
+        proc = subprocess.Popen(cmd + ["--retries", "0"], stdout=fh, stderr=fh, start_new_session=True)
+    try:
+        cancelled, deadline = None, time.time() + 600
+        while cancelled is None and time.time() < deadline and proc.poll() is None:
+            # the block jobs run once every plane is done: then the one running job is theirs
+            running = [i for i, state in active_jobs(prefix) if state == "RUNNING"]
+            if running and (out / "logs" / "block").is_dir() and any((out / "logs" / "block").iterdir()):
+                cancelled = running[0]
+                subprocess.run(["scancel", cancelled], check=True, timeout=60)
+            time.sleep(0.5)
+        assert cancelled, log.read_text()[-5000:]
+        proc.wait(timeout=240)
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            subprocess.run(["scancel", *[i for i, _ in active_jobs(prefix)]], check=False)
+            proc.wait()
+    lines = log.read_text().splitlines()
+    assert proc.returncode not in (0, None), lines[-40:]
+    assert re.match(rf"trivsel: error: SLURM job {cancelled} .*ended CANCELLED.*run the same command again",
+                    lines[-1]), lines[-40:]
+    assert not active_jobs(prefix)
+    assert not (out / "summary.json").exists()
+
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    output = r.stdout + r.stderr
+    assert r.returncode == 0, output[-5000:]
+    ids = re.findall(r"has been submitted with SLURM jobid (\d+)", output)
+    assert ids and not re.search(r"^\s*rule (kernels|lines|plane):$", output, flags=re.M), output[-5000:]
+    rows = sacct_rows(ids, ["JobID", "JobName", "State"])
+    assert all(row["State"] == "COMPLETED" and row["JobName"].startswith(prefix + "_") for row in rows.values()), rows
+    local = run_blocks(tmp_path / "local", "-c", "2")
+    assert local.returncode == 0, local.stderr[-3000:]
+    assert result_files(out) == result_files(tmp_path / "local")
 
 
 def test_cli_reduce_with_a_boundary(tmp_path):

@@ -44,9 +44,11 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import InputError, shown
+from . import slurm
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
-           "check_tetrahedra", "job_resources"]
+           "check_tetrahedra", "job_resources",
+           "group_components"]
 
 #: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
@@ -403,6 +405,26 @@ def job_resources(plan, kind, item=None, *, merged=True):
     else:
         mem, secs = JOB_BASE_BYTES, 60
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
+
+
+#: Grid points a cluster job should hold at least: a cluster spends seconds scheduling each job
+#: (about 8 s on a single-node SLURM), so plane and block jobs smaller than this are run several
+#: to a cluster job (Snakemake's group jobs; :func:`group_components`).
+MIN_CLUSTER_JOB_POINTS = 2_000_000
+
+
+def group_components(plan, *, min_points=MIN_CLUSTER_JOB_POINTS):
+    """How many jobs of each group of the blocked workflow one cluster job runs, as Snakemake's
+    ``--group-components`` takes them: ``{"planes": P, "blocks": B}``, enough jobs for their
+    points to reach ``min_points`` (at most all of them, at least one), evened out over the
+    cluster jobs."""
+    planes = [plan.shape[u] * plan.shape[v] for u, v in (_others(a) for a, _ in plan.planes())]
+    blocks = [int(np.prod([r[1] - r[0] for r in plan.block_region(b)])) for b in plan.blocks()]
+    out = {}
+    for name, n in (("planes", planes), ("blocks", blocks)):
+        per_job = min(len(n), max(1, int(np.ceil(min_points / np.mean(n)))))
+        out[name] = int(np.ceil(len(n) / np.ceil(len(n) / per_job)))
+    return out
 
 
 # ----------------------------------------------------------------------------- jobs (files)
@@ -1039,6 +1061,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     import subprocess
     import sys
     import tempfile
+    import time
 
     from ..io import check_output_dir
 
@@ -1053,10 +1076,17 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     if _runs_locally(snakemake_args):
         check_job_memory(Plan.from_dict(full["plan"]), merged=full["merged"])
     check_run_folder(out, full)
+    # batch small jobs on a cluster; name the SLURM jobs after the folder, so that they can be
+    # found and cancelled (Snakemake's arguments given after `--` come later and win)
+    batch = ["--group-components", *(f"{k}={v}" for k, v in group_components(Plan.from_dict(full["plan"])).items())]
+    prefix = slurm.job_prefix(out) if importlib.util.find_spec("snakemake_executor_plugin_slurm") else None
+    if prefix:
+        batch += ["--slurm-jobname-prefix", prefix]
+    on_slurm = prefix is not None and not _runs_locally(snakemake_args) and slurm.available()
 
     def command(folder, *extra):
         return [sys.executable, "-m", "snakemake", "--snakefile", str(SNAKEFILE), "--directory", str(folder),
-                "--cores", str(cores), *extra, *snakemake_args]
+                "--cores", str(cores), *extra, *batch, *snakemake_args]
 
     if dry_run:  # in the folder of an earlier run of this configuration, else in a temporary one
         plan_in = out if (out / CONFIG).exists() else Path(tempfile.mkdtemp(prefix="trivsel-blocks-plan-"))
@@ -1079,6 +1109,12 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             subprocess.run(command(out, "--unlock"), capture_output=True, check=False)
         pipe = {} if verbose else {"stdout": subprocess.PIPE, "stderr": subprocess.STDOUT, "text": True,
                                    "errors": "replace"}
+        if on_slurm:  # jobs a killed earlier run left queued or running: this run holds the folder
+            stale = slurm.cancel_jobs(prefix)
+            if stale:
+                print(f"trivsel: cancelled {len(stale)} SLURM job(s) left by an earlier run in {out}: "
+                      f"{' '.join(stale)}", file=sys.stderr)
+        started = time.time()
         # Snakemake holds the folder's lock too, until it ends: a driver killed outright does
         # not free the folder while its Snakemake stops its jobs
         proc = subprocess.Popen(command(out, "--rerun-incomplete"), preexec_fn=_start_session, pass_fds=(lock,),
@@ -1092,6 +1128,8 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 done, failure = _follow(proc, out, show)
         except BaseException:
             _stop_group(proc)
+            if on_slurm:
+                slurm.cancel_jobs(prefix)
             raise
         finally:
             _remove_run_temporaries(out)
@@ -1101,11 +1139,27 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             if missing:
                 failure = JobFailed(f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
                                     "(its arguments after '--' may have limited the run)")
+        if failure is not None and on_slurm:
+            failure = _slurm_failure(prefix, started, out) or failure
         if failure is not None:
             raise failure
         return done
     finally:
         os.close(lock)
+
+
+def _slurm_failure(prefix, since, out):
+    """The first SLURM job named ``prefix_*`` submitted since ``since`` that ended without
+    success, as a :class:`JobFailed` in one line (its state and log), or None."""
+    failed = slurm.failed_jobs(prefix, since)
+    if not failed:
+        return None
+    job, state, comment = failed[0]
+    logs = sorted((Path(out) / ".snakemake" / "slurm_logs").rglob(f"{job}.log"))
+    return JobFailed(f"SLURM job {job}{f' ({comment})' if comment else ''} ended {state}"
+                     f"{f', log {logs[0]}' if logs else ''}"
+                     f"{f' ({len(failed) - 1} more failed)' if len(failed) > 1 else ''}; "
+                     "run the same command again to resume")
 
 
 def main(argv=None):

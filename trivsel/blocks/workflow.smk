@@ -8,6 +8,12 @@
 # volume it needs, never the whole volume.  Memory and runtime requests come from the job's
 # size (trivsel.blocks.job_resources), so a cluster executor gets them unchanged:
 #   trivsel blocks ... -- --executor slurm --workflow-profile workflow/profiles/slurm
+#
+# Groups (used by cluster executors only; a local run ignores them): the kernels and the three
+# line jobs form one cluster job, and planes and blocks are batched several to a cluster job by
+# `--group-components planes=P blocks=B`, which `trivsel blocks` sets from the jobs' sizes
+# (trivsel.blocks.group_components), so that a cluster's scheduling time per job does not
+# dominate small jobs.  A group job runs its jobs side by side on the cores Snakemake is given.
 
 import sys
 
@@ -44,6 +50,8 @@ rule all:
 rule kernels:
     output:
         touch("kernels.done"),
+    group:
+        "lines"
     log:
         "logs/kernels.log",
     benchmark:
@@ -62,6 +70,8 @@ rule lines:
         "kernels.done",
     output:
         "lines/{axis}.npz",
+    group:
+        "lines"
     log:
         "logs/lines/{axis}.log",
     benchmark:
@@ -80,6 +90,8 @@ rule plane:
         lambda wc: [f"lines/{axis}.npz" for axis in range(3) if axis != parse_item(wc.plane)[0]],
     output:
         "planes/{plane}.npz",
+    group:
+        "planes"
     log:
         "logs/plane/{plane}.log",
     benchmark:
@@ -99,6 +111,8 @@ rule block:
     output:
         "pieces/{block}.npz",
         "pieces/{block}.vtu",
+    group:
+        "blocks"
     log:
         "logs/block/{block}.log",
     benchmark:
