@@ -280,10 +280,13 @@ def test_decimate_stopped_by_a_tolerance_says_which_fraction_it_did_not_reach(tm
     assert stopped > 73
     note = (f"fraction 0.1 (73 points) not reached: the run stopped at {stopped} points (no collapse was left "
             "that keeps every residual within tol_inf)")
-    assert info["notes"] == [note] and p.stderr.startswith(f"trivsel: warning: {note}\n"), p.stderr
+    # the first line, after the one-time compile's notice on a machine that has not compiled yet
+    lines = [x for x in p.stderr.splitlines() if not x.startswith("trivsel: compiling")]
+    assert info["notes"] == [note] and lines[0] == f"trivsel: warning: {note}", p.stderr
     with caplog.at_level("WARNING", logger="trivsel"):
         r = trivsel.reduce(4, n=8, method="decimate", fractions=[0.5, 0.1], tol_inf=0.05)
-    assert r.notes == [note] and [rec.getMessage() for rec in caplog.records] == [f"warning: {note}"]
+    said = [rec.getMessage() for rec in caplog.records if not rec.getMessage().startswith("compiling")]
+    assert r.notes == [note] and said == [f"warning: {note}"]
     assert trivsel.reduce(4, n=8, method="decimate", fractions=[0.5, 0.1]).notes == []
 
 

@@ -189,10 +189,10 @@ def source_hash(*names):
 
 
 CODE_CORE = source_hash()
-CODE_DATA = source_hash("data.py", "functions.py", "io.py")
+CODE_DATA = source_hash("data.py", "functions.py", "io/__init__.py")
 _PUBLISHED = ("study/published.py", "study/table1_published.csv")
 CODE_REPORT = source_hash("study/report.py", "study/ablation.py", *_PUBLISHED)
-CODE_FIGURES = source_hash("study/figures.py", "io.py", *_PUBLISHED)
+CODE_FIGURES = source_hash("study/figures.py", "io/__init__.py", *_PUBLISHED)
 CODE_METHODS = CODE_CORE + source_hash("study/comparison.py", "study/baselines.py")
 CODE_METHODS_REPORT = source_hash("study/comparison.py", "study/figures.py")
 CODE_ABLATION = CODE_CORE + source_hash("study/ablation.py", *_PUBLISHED)
