@@ -409,7 +409,9 @@ def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm)
     assert not active_jobs(prefix)
     assert not (out / "summary.json").exists()
 
-    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    # the rerun with Snakemake's own log (--verbose), which names the jobs it submits
+    rerun = cmd[:cmd.index("--")] + ["--verbose"] + cmd[cmd.index("--"):]
+    r = subprocess.run(rerun, capture_output=True, text=True, timeout=900)
     output = r.stdout + r.stderr
     assert r.returncode == 0, output[-5000:]
     ids = re.findall(r"has been submitted with SLURM jobid (\d+)", output)
