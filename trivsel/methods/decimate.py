@@ -23,8 +23,6 @@ from .protocol import MethodRun, requested_fractions, unreached
 NAME = "decimate"
 #: No insertion and no swapping: the swap options do not apply (they stay None).
 DEFAULTS = {"criterion": "sse"}
-GREEDY_QUEUE = False
-KERNEL = "decimate"
 #: The collapses start from the full grid's Kuhn split; a prescribed boundary is not supported.
 PRESCRIBED_BOUNDARY = False
 #: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
@@ -32,10 +30,6 @@ PRESCRIBED_BOUNDARY = False
 #: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
 BYTES_PER_POINT = 1000
 FIT_BYTES_PER_POINT = 150
-
-
-def needs_curvature(options):
-    return False
 
 
 def check_options(options):
