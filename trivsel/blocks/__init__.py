@@ -849,6 +849,8 @@ def publish_results(out):
 
 
 SNAKEFILE = Path(__file__).with_name("workflow.smk")
+#: Runs Snakemake in the run's process group and stops the group when ``trivsel blocks`` dies.
+SUPERVISE = Path(__file__).with_name("supervise.py")
 #: Seconds the stopped jobs of an interrupted run get to remove their temporary files
 #: before they are killed.
 STOP_SECONDS = 30
@@ -919,8 +921,9 @@ def _lock_folder(out):
 
 
 def _start_session():
-    """In Snakemake's process, before it starts: a session (and process group) of its own, which
-    takes its jobs too, so that stopping the run stops every one of them; and SIGTERM when the
+    """In the supervisor's process (:data:`SUPERVISE`), before it starts: a session (and
+    process group) of its own, which Snakemake and its jobs share, so that stopping the run
+    stops every one of them; and SIGTERM, until the supervisor sets its own signal, when the
     ``trivsel blocks`` process that started it dies, however it dies (Linux)."""
     import ctypes
     import signal
@@ -1115,10 +1118,11 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 print(f"trivsel: cancelled {len(stale)} SLURM job(s) left by an earlier run in {out}: "
                       f"{' '.join(stale)}", file=sys.stderr)
         started = time.time()
-        # Snakemake holds the folder's lock too, until it ends: a driver killed outright does
-        # not free the folder while its Snakemake stops its jobs
-        proc = subprocess.Popen(command(out, "--rerun-incomplete"), preexec_fn=_start_session, pass_fds=(lock,),
-                                **pipe)
+        # Snakemake runs under a supervisor that holds the folder's lock until every job has
+        # ended, and stops them all if this process is killed outright (supervise.py)
+        proc = subprocess.Popen([sys.executable, str(SUPERVISE), str(os.getpid()), str(STOP_SECONDS),
+                                 *command(out, "--rerun-incomplete")],
+                                preexec_fn=_start_session, pass_fds=(lock,), **pipe)
         try:
             if verbose:
                 done, failure = None, None
