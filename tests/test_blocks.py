@@ -119,6 +119,8 @@ def test_boundary_needs_a_grid():
     p = rng.random((50, 3))
     with pytest.raises(InputError, match="needs grid data"):
         reduce(scattered(p, p[:, 0]), count=20, boundary=np.array([[0, 1, 2]] * 4))
+    with pytest.raises(InputError, match="cannot take a prescribed boundary"):
+        reduce(scattered(p, p[:, 0]), count=20, boundary=np.array([[0, 1, 2]] * 4), method="decimate")
 
 
 # ----------------------------------------------------------------------------- plan

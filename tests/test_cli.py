@@ -49,7 +49,7 @@ def test_vti_grid_takes_the_exact_path_and_keeps_spacing(tmp_path):
     path = tmp_path / "blob.vti"
     img.save(path)
     a, b = tmp_path / "a", tmp_path / "b"
-    assert main(["reduce", str(path), "--fractions", "0.3", "--out", str(a)]) == 0
+    assert main(["reduce", str(path), "--method", "paper", "--fractions", "0.3", "--out", str(a)]) == 0
     assert main(["reduce", "--function", "4", "--n", "6", "--fractions", "0.3", "--out", str(b)]) == 0
     ea, eb = pd.read_csv(a / "errors.csv"), pd.read_csv(b / "errors.csv")
     # a file's run names its input; function and n are those of Table-1 runs only
@@ -189,10 +189,12 @@ def test_long_stages_are_announced_for_scattered_files(tmp_path):
     rng = np.random.default_rng(0)
     p = rng.random((300, 3))
     np.savez(tmp_path / "pts.npz", points=p, values=p[:, 0] ** 2)
-    r = _run_cli("reduce", str(tmp_path / "pts.npz"), "--fractions", "0.3", "--out", str(tmp_path / "o"),
-                 "--progress", "always")
-    stages = [x.split("] ")[1] for x in r.stderr.replace("\r", "\n").splitlines() if x.startswith("trivsel [")]
-    assert [s.split(" ")[0] for s in stages] == ["reading", "convex", "Delaunay", "curvature", "inserting"], stages
+    for method, expected in (("paper", ["reading", "convex", "Delaunay", "curvature", "inserting"]),
+                             ("auto", ["reading", "decimating", "Delaunay"])):
+        r = _run_cli("reduce", str(tmp_path / "pts.npz"), "--fractions", "0.3", "--out", str(tmp_path / method),
+                     "--progress", "always", "--method", method)
+        stages = [x.split("] ")[1] for x in r.stderr.replace("\r", "\n").splitlines() if x.startswith("trivsel [")]
+        assert [s.split(" ")[0] for s in stages] == expected, stages
 
 
 def test_reduce_progress_callback_reports_current_errors():

@@ -374,8 +374,8 @@ def test_interior_candidates_keep_every_box_point():
 
 
 @pytest.mark.parametrize("call, message", [
-    (lambda: trivsel.reduce(trivsel.scattered(np.random.default_rng(1).random((50, 3)), np.zeros(50)), count=20,
-                                  method="decimate"), "needs grid data"),
+    (lambda: trivsel.reduce(trivsel.scattered(np.random.default_rng(1).random((50, 3)), np.zeros(50)), count=3,
+                            method="decimate"), "fewer than the 4 points"),
     (lambda: trivsel.reduce(4, n=4, count=7, method="decimate"), "fewer than the 8 points"),
     (lambda: trivsel.reduce(4, n=4, count=20, method="decimate",
                             boundary=np.array([[0, 1, 2]])), "prescribed boundary"),

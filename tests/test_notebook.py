@@ -334,4 +334,4 @@ def test_compare_matches_the_rows_of_two_file_runs(tmp_path, capsys):
     table.to_csv(b, index=False)
     capsys.readouterr()
     assert main(["compare", a, b]) == 1
-    assert "[input=v, method=paper, values=data, fraction=0.3] E_rms: new" in capsys.readouterr().out
+    assert "[input=v, method=decimate, values=data, fraction=0.3] E_rms: new" in capsys.readouterr().out

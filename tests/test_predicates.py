@@ -99,8 +99,8 @@ def test_orient3d_float_sign_on_clear_cases():
 
 @pytest.mark.parametrize("extent", [3, 1000, 2**20])
 def test_decimation_integer_orientation_is_the_exact_determinant(extent):
-    """``_orient`` of the decimation kernels, on int64 grid coordinates: the exact value,
-    not only its sign, including flat and nearly flat tets."""
+    """``_orient`` of the decimation kernels, on int64 grid coordinates: the exact sign, and
+    the exact value as a double (exact below 2^53), including flat and nearly flat tets."""
     rng = np.random.default_rng(extent)
     P = rng.integers(0, extent, size=(64, 3)).astype(np.int64)
     # exactly coplanar quadruples: points of the plane z = x + 2 y (mod nothing: kept small)
@@ -111,7 +111,7 @@ def test_decimation_integer_orientation_is_the_exact_determinant(extent):
     zero = 0
     for a, b, c, d in quads:
         want = exact_orient(P[a], P[b], P[c], P[d])
-        assert _orient(P, a, b, c, d) == want, (a, b, c, d)
+        assert _orient(P, False, a, b, c, d) == float(want), (a, b, c, d)
         zero += want == 0
     assert zero >= 50
 

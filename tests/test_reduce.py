@@ -27,10 +27,12 @@ def test_fraction_counts_round_half_up_and_include_fixed_points():
 
 def test_linear_function_has_zero_error_at_every_snapshot():
     lin = grid_from_array(np.fromfunction(lambda i, j, k: 0.3 * i - 0.2 * j + 0.1 * k + 1.0, (7, 7, 7)))
-    r = trivsel.reduce(lin, fractions=[0.1, 0.3, 0.6], check=check_mesh)
+    r = trivsel.reduce(lin, fractions=[0.1, 0.3, 0.6], check=check_mesh, method="paper")
     for s in r.snapshots:
         assert s.errors["E_inf"] < 1e-12
     assert r.stats["flips"] == {"2-3": 0, "3-2": 0, "4-4": 0}  # nothing to gain, nothing flipped
+    d = trivsel.reduce(lin, fractions=[0.1, 0.3, 0.6], check=check_mesh)  # auto: decimate, checked too
+    assert d.options["method"] == "decimate" and max(s.errors["E_inf"] for s in d.snapshots) < 1e-12
 
 
 def test_linear_function_scattered_zero_error():

@@ -252,7 +252,8 @@ def test_refusals_are_one_line(tmp_path):
     assert check_region([[0, 1], (0, 2), (np.int64(1), 3)], (2, 2, 3)) == ((0, 1), (0, 2), (1, 3))
 
 
-def test_region_data_reduces_as_its_own_grid():
+@pytest.mark.parametrize("method", ["paper", "decimate"])
+def test_region_data_reduces_as_its_own_grid(method):
     """Global ijk change nothing in a reduction: the region reduces as the same grid numbered from 0."""
     vol = open_volume(function=4, n=12)
     r = ((3, 10), (2, 8), (5, 13))
@@ -261,7 +262,7 @@ def test_region_data_reduces_as_its_own_grid():
                       shape=region.shape, origin=region.origin + np.asarray(region.offset) * region.spacing,
                       spacing=region.spacing, name=region.name)
     assert np.array_equal(region.interior_mask(), local.interior_mask()) and local.interior_mask().sum() == 5 * 4 * 6
-    a, b = trivsel.reduce(region, fractions=[0.3]), trivsel.reduce(local, fractions=[0.3])
+    a, b = (trivsel.reduce(d, fractions=[0.3], method=method) for d in (region, local))
     assert np.array_equal(a.snapshots[0].tets, b.snapshots[0].tets)
     errors = [c for c in a.errors_frame().columns if c.startswith("E_")]
     assert len(errors) == 4 and a.errors_frame()[errors].equals(b.errors_frame()[errors])

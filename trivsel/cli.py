@@ -224,12 +224,24 @@ def _cmd_reduce(a):
     from .data import sample_grid
     from .functions import resolve_function
     from .io import check_output_dir, format_rows, fraction_label, import_vtk_writer, load, write_outputs
-    from .options import from_namespace
+    from .options import AUTO, choose_method, from_namespace, option_fields
     from .reduction import reduce
 
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
-    options = from_namespace(a)
+    chosen = a.method in (None, AUTO)
+    if chosen:
+        a.method = choose_method(a.function is not None,
+                                 [f.name for f in option_fields() if getattr(a, f.name, None) is not None],
+                                 prescribed_boundary=a.boundary is not None)
+    try:
+        options = from_namespace(a)
+    except InputError as exc:
+        if not chosen:
+            raise
+        raise InputError(f"{exc} (method auto runs {a.method} on "
+                         f"{'a Table-1 function' if a.function is not None else 'an input file'}: "
+                         "give --method to choose another)") from None
     files = ["errors.csv", "result.json"] + [f"mesh_{fraction_label(f)}.vtu" for f in a.fractions or ()]
     check_output_dir(a.out, [p for p in (a.input, a.boundary) if p is not None], files)  # before any work
     show = a.progress == "always" or (a.progress == "auto" and sys.stderr.isatty())

@@ -50,6 +50,10 @@ class PointData:
         differs from trivsel's (a VTK image numbers its points x fastest, trivsel's
         grids x slowest); ``None``: the point's own index.  Written to the output
         meshes as ``original_index``.
+    tets : (M, 4) int64 or None
+        The tetrahedra of a mesh read with its cells (a ``.vtu`` or ``.vtk``); its domain,
+        possibly non-convex, is their union.  ``None``: the domain of scattered points is
+        their convex hull.
     """
 
     points: np.ndarray
@@ -61,6 +65,7 @@ class PointData:
     name: str = "data"
     meta: dict = field(default_factory=dict)
     file_index: np.ndarray | None = None
+    tets: np.ndarray | None = None
 
     def file_ids(self, indices):
         """The input file's point ids of the given (trivsel) point indices."""
@@ -81,11 +86,18 @@ class PointData:
         For a grid these are the points with every integer coordinate strictly
         between 0 and the last index: ``(n - 1)^3`` of them on an ``(n + 1)^3`` grid.
         For scattered data it is computed from the convex hull (see
-        :func:`trivsel.triangulation.hull_boundary_mask`).
+        :func:`trivsel.triangulation.hull_boundary_mask`), for a mesh from the boundary
+        triangles of its tetrahedra.
         """
         if self.is_grid:
             hi = np.asarray(self.shape) - 1
             return np.all((self.ijk > 0) & (self.ijk < hi), axis=1)
+        if self.tets is not None:
+            from .triangulation import boundary_triangles
+
+            inner = np.ones(self.n_points, bool)
+            inner[np.unique(boundary_triangles(self.tets))] = False
+            return inner
         from .triangulation import hull_boundary_mask
 
         return ~hull_boundary_mask(self.points)

@@ -79,8 +79,11 @@ class Options:
     method: str = _option(
         "paper", "point selection: 'paper' ranks by absolute curvature (sections 2-4); 'greedy' inserts the "
         "worst-approximated point next (error-driven, Garland & Heckbert 1995 lifted to 3-D); 'decimate' "
-        "removes points from the full grid by the half-edge collapse that raises the squared error least "
-        "(grids; aims at E_RMS)",
+        "removes points from the full mesh (a grid, the Delaunay tetrahedra of scattered points, or a mesh's "
+        "own tetrahedra) by the half-edge collapse that raises the squared error least (aims at E_RMS); "
+        "'auto' (the default for data: trivsel reduce INPUT, reduce(data)) is 'decimate' for data (or, "
+        "given options of the inserting methods only, the first of those that takes them) and 'paper' for a "
+        "Table-1 function",
         kind="choice", paper="sections 2-4", tag="method")
     criterion: str | None = _option(
         None, "swap criterion: sum of the tetrahedral RMS errors (eq. 14) 'rms', of the max errors (eq. 15) "
@@ -233,6 +236,28 @@ def method_group(name) -> tuple:
     return methods or _method_names()
 
 
+#: The method name that :func:`choose_method` resolves.
+AUTO = "auto"
+
+
+def choose_method(is_function: bool, given=(), *, prescribed_boundary=False) -> str:
+    """What ``method="auto"`` runs: ``paper`` for a Table-1 function (the reproduction).
+    For user data (grids, scattered points and tetrahedral meshes) ``decimate``, which gives
+    the lowest E_RMS of trivsel's methods and beats VTK's decimation
+    (``benchmarks/README.md``); then ``greedy`` (about 7x lower E_RMS than ``paper`` on
+    scattered data), then ``paper``: the first that takes every option named in ``given``
+    and, with ``prescribed_boundary``, a prescribed boundary."""
+    from .methods import METHODS
+
+    if is_function:
+        return "paper"
+    for name in ("decimate", "greedy", "paper"):
+        if all(applies(k, name) for k in given if k != "method") and (METHODS[name].PRESCRIBED_BOUNDARY
+                                                                       or not prescribed_boundary):
+            return name
+    return "decimate"
+
+
 def check_applicable(names, method):
     """One-line InputError for the first option of ``names`` that does not apply to ``method``."""
     for name in names:
@@ -338,7 +363,9 @@ def add_arguments(parser):
             if meta["kind"] == "bool":
                 g.add_argument(_flag(f), action=argparse.BooleanOptionalAction, **kw)
             elif meta["kind"] == "choice":
-                g.add_argument(_flag(f), choices=_choices(f), nargs="+" if meta["sequence"] else None, **kw)
+                # method 'auto' is resolved by the command before Options is made
+                choices = (*_choices(f), "auto") if f.name == "method" else _choices(f)
+                g.add_argument(_flag(f), choices=choices, nargs="+" if meta["sequence"] else None, **kw)
             else:
                 g.add_argument(_flag(f), type=int if meta["kind"] == "int" else float, **kw)
 

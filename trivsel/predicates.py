@@ -4,7 +4,8 @@ Two small pure functions, compiled with numba:
 
 * :func:`orient3d_int` - exact, on integer grid coordinates (int64; products of three
   coordinate differences stay far below 2^63 for any grid that fits in memory);
-* :func:`orient3d_float_sign` - robust, on float coordinates: a float determinant
+* :func:`orient3d_float_sign` (and :func:`orient3d_robust`, a determinant with that
+  sign) - robust, on float coordinates: a float determinant
   with Shewchuk's static error bound decides when it can; otherwise the sign is
   computed exactly by expansion arithmetic (:func:`orient3d_exact_sign`), which
   represents every coordinate difference and triple product as an unevaluated sum
@@ -133,8 +134,10 @@ def orient3d_exact_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
 
 
 @njit(cache=True)
-def orient3d_float_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
-    """Robust sign of ``orient3d`` on doubles: filtered float, exact fallback."""
+def orient3d_robust(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
+    """``det[b - a, c - a, d - a]`` on doubles, with the exact sign: the float determinant
+    when Shewchuk's static error bound shows its sign is right, else 0.0 or the exact sign
+    (expansion arithmetic) times the bound.  For weights whose signs decide."""
     adx = ax - dx
     bdx = bx - dx
     cdx = cx - dx
@@ -155,8 +158,13 @@ def orient3d_float_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
     perm = ((abs(bdxcdy) + abs(cdxbdy)) * abs(adz) + (abs(cdxady) + abs(adxcdy)) * abs(bdz)
             + (abs(adxbdy) + abs(bdxady)) * abs(cdz))
     bound = _O3D_ERRBOUND * perm
-    if det > bound:
-        return -1
-    if -det > bound:
-        return 1
-    return orient3d_exact_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz)
+    if det > bound or -det > bound:
+        return -det
+    return orient3d_exact_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz) * (bound if bound > 0.0 else 1e-300)
+
+
+@njit(cache=True)
+def orient3d_float_sign(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz):
+    """Robust sign of ``orient3d`` on doubles: filtered float, exact fallback."""
+    v = orient3d_robust(ax, ay, az, bx, by, bz, cx, cy, cz, dx, dy, dz)
+    return 1 if v > 0 else (-1 if v < 0 else 0)

@@ -17,12 +17,12 @@ from dataclasses import replace
 
 import numpy as np
 
-from .data import sample_grid
+from .data import PointData, sample_grid
 from .exceptions import InputError, check_threads, shown
 from .functions import resolve_function
 from .methods import get_method
 from .methods.protocol import Problem
-from .options import Options, check_applicable, option_fields
+from .options import AUTO, Options, check_applicable, choose_method, option_fields
 from .result import ReductionResult, Snapshot
 from .selection import validate_fractions
 
@@ -35,7 +35,8 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
         as a grid with its origin and spacing, others as scattered points; a nibabel
         NIfTI image, as a ``.nii`` file is read; a :class:`pathlib.Path` to a file
         (:func:`~trivsel.io.load`); or a Table-1 function number or name (a ``str``),
-        sampled on the ``(n+1)^3`` grid of eq. (18).
+        sampled on the ``(n+1)^3`` grid of eq. (18).  A pyvista dataset or file with
+        tetrahedra is a mesh: ``decimate`` keeps its domain (possibly non-convex).
     fractions : sequence of float in (0, 1], optional
         Stop at these fractions of all points (fixed points included, rounded half
         up: 50 % of 4913 is 2457).  One run goes to the largest; the others are
@@ -84,9 +85,16 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
 def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, array=None, volume=None,
            boundary=None, options=None, threads=1, check=None, progress=None, **option_overrides):
     t_start = time.perf_counter()
+    is_function = isinstance(data, (str, numbers.Integral)) and not isinstance(data, bool)
+    if option_overrides.get("method", AUTO if options is None else None) == AUTO:
+        # a Table-1 function, by number or name or sampled (sample_grid), is the paper's data
+        sampled = isinstance(data, PointData) and "function" in data.meta
+        option_overrides["method"] = choose_method(is_function or sampled,
+                                                   [k for k, v in option_overrides.items() if v is not None],
+                                                   prescribed_boundary=boundary is not None)
     opts = _options(options, option_overrides)
     method = get_method(opts.method)
-    if isinstance(data, (str, numbers.Integral)) and not isinstance(data, bool):
+    if is_function:
         if array is not None or volume is not None:
             raise InputError(f"{'array' if array is not None else 'volume'}= applies to input data, "
                              "not to a Table-1 function")
@@ -273,7 +281,9 @@ reduce.__doc__ = f"""Select points and build the data-dependent tetrahedral mesh
 
 def _signature():
     params = [p for p in inspect.signature(reduce).parameters.values() if p.kind != p.VAR_KEYWORD]
-    params += [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY, default=f.default)
+    # method="auto": the method of the data (``choose_method``), the paper's for a Table-1 function
+    params += [inspect.Parameter(f.name, inspect.Parameter.KEYWORD_ONLY,
+                                 default=AUTO if f.name == "method" else f.default)
                for f in option_fields()]
     return inspect.Signature(params)
 

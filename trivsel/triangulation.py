@@ -367,10 +367,21 @@ def boundary_triangles(tets) -> np.ndarray:
     tets = np.asarray(tets, np.int64)
     # the face opposite local vertex i, ordered so that the tet's vertex i lies on its negative side
     faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
-    key = np.sort(faces, axis=1)
-    _, inv, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
-    once = counts[inv.ravel()] == 1
+    once = face_multiplicity(np.sort(faces, axis=1)) == 1
     return faces[once]
+
+
+def face_multiplicity(rows):
+    """For each row of sorted vertex triples ``rows`` (F, 3), how many rows equal it: one
+    integer key per row while they fit in int64 (a fast 1-D sort), else rows compared."""
+    rows = np.asarray(rows, np.int64)
+    n = int(rows.max()) + 1 if rows.size else 1
+    if n ** 3 < 2 ** 63:
+        _, inv, counts = np.unique((rows[:, 0] * n + rows[:, 1]) * n + rows[:, 2], return_inverse=True,
+                                   return_counts=True)
+    else:
+        _, inv, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+    return counts[inv.ravel()]
 
 
 def edge_neighbours(tets, n_points: int):

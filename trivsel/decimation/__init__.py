@@ -58,8 +58,10 @@ __all__ = ["grid_tetrahedra", "Decimation"]
 INF = np.inf
 
 # lock bits of a point: bit a (a = 0, 1, 2) set when the point is on the box's low or high
-# face normal to axis a; LOCK_ALL when it may not move at all
+# face normal to axis a; LOCK_ALL when it may not move at all; LOCK_MESH when it is on the
+# boundary of a mesh's domain (it moves only within its flat patch or along its crease)
 LOCK_ALL = 8
+LOCK_MESH = 16
 #: Corners (4 per tet) below which the mesh's indices are int32 (above, int64; the same results)
 INT32_CORNERS = 2**31
 #: Room in the corner pool, over the corners' segments (``_segments``);
@@ -113,7 +115,8 @@ class State(NamedTuple):
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
                       the max criterion, lazy updates, the corner pool's top]
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
-                      planes, kw whether each holds the target being tried; pbuf
+                      planes, kw whether each holds the target being tried, B the
+                      boundary triangles around a mesh's boundary vertex; pbuf
                       the points of the star's buckets, phome the star index of each;
                       mark stamps of points (stamp[0] the last)
     """
@@ -145,6 +148,7 @@ class State(NamedTuple):
     Q: np.ndarray
     G: np.ndarray
     kw: np.ndarray
+    B: np.ndarray
     stamp: np.ndarray
     pbuf: np.ndarray
     phome: np.ndarray
@@ -153,7 +157,7 @@ class State(NamedTuple):
     ctr: np.ndarray
 
 
-C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP = 0, 1, 2, 3, 4, 5
+C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP, C_FLOAT = 0, 1, 2, 3, 4, 5, 6
 
 #: The module of the compiled kernels, and the sources their machine code depends on
 KERNELS = "trivsel.decimation.collapse"
@@ -220,9 +224,90 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                  removed=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
-                 kw=np.zeros(STAR_CAPACITY, np.bool_), stamp=np.zeros(1, np.int64),
+                 kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
+                 stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                 ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum()], np.int64))
+                 ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum(), 0], np.int64))
+
+
+def _det3(u, v, w):
+    """Row-wise ``det[u, v, w]`` of (k, 3) arrays."""
+    return np.einsum("ij,ij->i", np.cross(u, v), w)
+
+
+def lattice_coordinates(points):
+    """Integer coordinates ``ijk`` with ``points == origin + ijk * spacing`` exactly (in
+    float, per axis, as a grid's points are made), or None when the points are not on such
+    a lattice (or it is too large for exact integer predicates)."""
+    p = np.asarray(points, np.float64)
+    ijk = np.empty(p.shape, np.int64)
+    for a in range(3):
+        u = np.unique(p[:, a])
+        if len(u) < 2:
+            return None
+        step = float(np.min(np.diff(u)))
+        k = np.round((p[:, a] - u[0]) / step)
+        if k.max() >= 2**20 or not np.array_equal(u[0] + k * step, p[:, a]):
+            return None
+        ijk[:, a] = k.astype(np.int64)
+    return ijk
+
+
+def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False):
+    """The :class:`State` of a decimation of a tetrahedral mesh: coordinates ``points``,
+    positively oriented ``tets`` (every tet of nonzero volume, conforming), point values;
+    ``located`` the tet holding each point that is no tet's vertex (-1 for the vertices).
+    The mesh's boundary vertices get ``LOCK_MESH``.  Points on a lattice (a mesh made
+    from a grid, say) take the exact integer predicates of grids on their lattice
+    coordinates (an affine image: the same signs and barycentric weights); other points
+    the robust predicates on their float coordinates (``ctr[C_FLOAT]``)."""
+    from ..triangulation import boundary_triangles
+
+    ijk = lattice_coordinates(points)
+    P = np.ascontiguousarray(points, np.float64) if ijk is None else ijk
+    f = np.ascontiguousarray(values, np.float64)
+    Tm = np.asarray(tets, np.int64)
+    N, M = P.shape[0], Tm.shape[0]
+    ix = np.int32 if 4 * M < INT32_CORNERS and N < INT32_CORNERS else np.int64
+    T = _aligned_empty((M, 4), ix)
+    T[...] = Tm
+    deg = np.bincount(Tm.ravel(), minlength=N)
+    cap, vstart = _segments(deg)
+    lk = np.zeros(N, np.int8)
+    lk[np.unique(boundary_triangles(Tm))] = LOCK_MESH
+    isv = deg > 0
+    phead = np.full(M, -1, ix)
+    pnext = np.full(N, -1, ix)
+    ptet = np.full(N, -1, ix)
+    res = np.zeros(N)
+    if located is not None:  # points that are no tet's vertex: in the tet that holds them
+        inside = np.flatnonzero(~isv)
+        for p in inside:
+            t = int(located[p])
+            ptet[p] = t
+            pnext[p] = phead[t]
+            phead[t] = p
+        if len(inside):
+            pf = np.asarray(points, np.float64)
+            q = pf[Tm[ptet[inside]]]  # (k, 4, 3)
+            x = pf[inside]
+            lam = np.stack([_det3(q[:, 1] - x, q[:, 2] - x, q[:, 3] - x), _det3(x - q[:, 0], q[:, 2] - q[:, 0],
+                            q[:, 3] - q[:, 0]), _det3(q[:, 1] - q[:, 0], x - q[:, 0], q[:, 3] - q[:, 0]),
+                            _det3(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0], x - q[:, 0])], axis=1)
+            lam = np.maximum(lam, 0.0)
+            lam /= lam.sum(axis=1, keepdims=True)
+            res[inside] = f[inside] - np.einsum("ij,ij->i", lam, f[Tm[ptet[inside]]])
+    return State(P=P, f=f, T=T, alive=np.ones(M, np.bool_),
+                 cpool=np.full(int(cap.sum() * POOL_ROOM), -1, ix), vstart=vstart, vcap=cap.astype(np.int32),
+                 phead=phead, pnext=pnext, ptet=ptet, res=res, isv=isv.copy(), lock=lk, hv=np.zeros(N, ix),
+                 hpos=np.full(N, -1, ix), hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix),
+                 hdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
+                 removed=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
+                 Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
+                 kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
+                 stamp=np.zeros(1, np.int64),
+                 pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
+                 ctr=np.array([int(isv.sum()), 0, 0, key == "max", bool(lazy), cap.sum(), ijk is None], np.int64))
 
 
 class Decimation:
@@ -237,12 +322,20 @@ class Decimation:
     starts with lazy updates of the queue (the module's docstring); :attr:`lazy` switches.
     """
 
-    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False):
+    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False, state=None):
         self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
-        self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy)
+        self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy) if state is None else state
+        self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
         self._k = kernels(self.S)
         self._k.init(self.S, self.tol_inf)
+
+    @classmethod
+    def on_mesh(cls, points, tets, values, *, located=None, tol_inf=None, key="sse", lazy=False):
+        """A decimation of a tetrahedral mesh (:func:`new_mesh_state`): its boundary is kept
+        exactly, its vertices removed by the same collapses as on a grid."""
+        return cls(None, None, None, tol_inf=tol_inf, key=key, lazy=lazy,
+                   state=new_mesh_state(points, tets, values, located=located, key=key, lazy=lazy))
 
     @property
     def n_vertices(self):
@@ -308,6 +401,30 @@ class Decimation:
     def point_weights(self):
         return self._k.weights(self.S)
 
+    def check(self):
+        """Raise :class:`trivsel.mesh.validation.MeshInvalid` unless every live tetrahedron is
+        positively oriented (exact), no face is in more than two, and every point that is no
+        vertex lies in the tetrahedron of its bucket (weights >= 0 summing to 1)."""
+        from ..mesh.validation import MeshInvalid
+        from ..triangulation import _exact_signs, face_multiplicity
+
+        S, tets = self.S, self.tetrahedra()
+        if S.ctr[C_FLOAT]:
+            sign = _exact_signs(S.P, tets)
+        else:
+            d = (S.P[tets[:, 1:]] - S.P[tets[:, :1]]).astype(np.int64)
+            sign = np.sign(np.einsum("ij,ij->i", np.cross(d[:, 0], d[:, 1]), d[:, 2]))
+        if (sign <= 0).any():
+            k = int(np.argmax(sign <= 0))
+            raise MeshInvalid(f"tet {tets[k].tolist()} is not positively oriented")
+        faces = np.sort(np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 2, 3]], tets[:, [0, 1, 3]],
+                                        tets[:, [0, 1, 2]]]), axis=1)
+        if face_multiplicity(faces).max() > 2:
+            raise MeshInvalid("a face is in more than two tetrahedra")
+        _, w = self.point_weights()
+        if (w < 0).any() or not np.allclose(w.sum(axis=1), 1.0):
+            raise MeshInvalid("a point lies outside the tetrahedron of its bucket")
+
 
 #: Target wall time of one call into the compiled loop, so that Ctrl-C stops a run promptly.
 CHUNK_SECONDS = 0.25
@@ -353,8 +470,16 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     t_start = time.perf_counter() if t_start is None else t_start
     N = data.n_points
     interior = data.interior_mask() if interior is None else interior
-    dec = Decimation(data.ijk, data.shape, data.values, tol_inf=tol_inf,
-                     lock="all" if candidates == "interior" else "box", key=key)
+    if data.is_grid:  # on the grid's own lattice coordinates (a region's start at 0)
+        dec = Decimation(data.ijk - data.ijk.min(axis=0), data.shape, data.values, tol_inf=tol_inf,
+                         lock="all" if candidates == "interior" else "box", key=key)
+    else:
+        from .tetmesh import start_mesh
+
+        tets, located = start_mesh(data)
+        dec = Decimation.on_mesh(data.points, tets, data.values, located=located, tol_inf=tol_inf, key=key)
+        if candidates == "interior":
+            dec.S.lock[~interior] |= LOCK_ALL
     sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)
     shots, t_errors, step, stopped, near, code = [], 0.0, 4096, False, False, 0
     last = min(int(t) for t in targets)  # progress counts down from the full grid to the last target

@@ -12,36 +12,42 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL
-from ..predicates import orient3d_value
+from . import C_FLOAT, C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL, LOCK_MESH
+from ..predicates import orient3d_robust, orient3d_value
 
 # ----------------------------------------------------------------------------- geometry
 
 
 @njit(cache=True, _nrt=False)
-def _orient(P, a, b, c, d):
-    """Six times the signed volume of (a, b, c, d): exact on integer coordinates."""
-    return orient3d_value(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
-                          P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2])
+def _orient(P, flt, a, b, c, d):
+    """Six times the signed volume of (a, b, c, d), with the exact sign: exact on integer
+    grid coordinates; on float coordinates (``flt``, a mesh) the float determinant whose
+    sign is decided by the robust predicate (:func:`trivsel.predicates.orient3d_robust`)."""
+    if flt:
+        return orient3d_robust(float(P[a, 0]), float(P[a, 1]), float(P[a, 2]), float(P[b, 0]), float(P[b, 1]),
+                               float(P[b, 2]), float(P[c, 0]), float(P[c, 1]), float(P[c, 2]), float(P[d, 0]),
+                               float(P[d, 1]), float(P[d, 2]))
+    return float(orient3d_value(P[a, 0], P[a, 1], P[a, 2], P[b, 0], P[b, 1], P[b, 2],
+                                P[c, 0], P[c, 1], P[c, 2], P[d, 0], P[d, 1], P[d, 2]))
 
 
 @njit(cache=True, _nrt=False)
-def _value_in(P, f, q0, q1, q2, q3, p):
+def _value_in(P, flt, f, q0, q1, q2, q3, p):
     """``(inside, L)``: whether p is in the closed tet (q0, q1, q2, q3) and, if so, the
     linear interpolant of the vertex values there (eq. 13)."""
-    l0 = _orient(P, p, q1, q2, q3)
+    l0 = _orient(P, flt, p, q1, q2, q3)
     if l0 < 0:
         return False, 0.0
-    l1 = _orient(P, q0, p, q2, q3)
+    l1 = _orient(P, flt, q0, p, q2, q3)
     if l1 < 0:
         return False, 0.0
-    l2 = _orient(P, q0, q1, p, q3)
+    l2 = _orient(P, flt, q0, q1, p, q3)
     if l2 < 0:
         return False, 0.0
-    l3 = _orient(P, q0, q1, q2, p)
+    l3 = _orient(P, flt, q0, q1, q2, p)
     if l3 < 0:
         return False, 0.0
-    D = float(l0 + l1 + l2 + l3)
+    D = l0 + l1 + l2 + l3
     return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / D
 
 
@@ -94,25 +100,25 @@ def _gather(S, sc, n, Q):
 
 
 @njit(cache=True, _nrt=False)
-def _value_moved(P, f, Q, sc, i, w, p):
+def _value_moved(P, flt, f, Q, sc, i, w, p):
     """``_value_in`` for star tet ``Q[i]`` with v's slot holding w."""
     s = sc[i] & 3
-    return _value_in(P, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
+    return _value_in(P, flt, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
                      w if s == 3 else Q[i, 3], p)
 
 
 @njit(cache=True, _nrt=False)
-def _locate_star(P, f, Q, sc, kw, n, w, p, hint):
+def _locate_star(P, flt, f, Q, sc, kw, n, w, p, hint):
     """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
     w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
     if hint >= 0 and not kw[hint]:
-        ok, val = _value_moved(P, f, Q, sc, hint, w, p)
+        ok, val = _value_moved(P, flt, f, Q, sc, hint, w, p)
         if ok:
             return hint, val
     for i in range(n):
         if i == hint or kw[i]:
             continue
-        ok, val = _value_moved(P, f, Q, sc, i, w, p)
+        ok, val = _value_moved(P, flt, f, Q, sc, i, w, p)
         if ok:
             return i, val
     return -1, 0.0
@@ -172,11 +178,52 @@ def _star(S, v, out):
 
 
 @njit(cache=True, _nrt=False)
-def _allowed(S, v, w):
-    """The box constraint: w is on every box face that v is on."""
+def _boundary_faces(Q, sc, n, v, B):
+    """The boundary triangles ``(v, B[k, 0], B[k, 1])`` around a vertex v of a mesh: the faces
+    of v's tets (``Q[:n]``, v in slot ``sc[i] & 3``) that contain v and no other tet of v
+    shares.  Returns their count, or -1 if ``B`` cannot hold them (v then does not move)."""
+    nb = 0
+    for i in range(n):
+        s = sc[i] & 3
+        for j in range(4):
+            if j == s:
+                continue
+            # the face of v's tet i without its slot j: v and the two others
+            a = Q[i, 0 if (0 != s and 0 != j) else (1 if (1 != s and 1 != j) else 2)]
+            b = Q[i, 3 if (3 != s and 3 != j) else (2 if (2 != s and 2 != j) else 1)]
+            shared = False
+            for k in range(n):
+                if k != i and _has(Q, k, a) and _has(Q, k, b):
+                    shared = True
+                    break
+            if not shared:
+                if nb == B.shape[0]:
+                    return -1
+                B[nb, 0], B[nb, 1] = a, b
+                nb += 1
+    return nb
+
+
+@njit(cache=True, _nrt=False)
+def _allowed(S, v, w, B, nb):
+    """The domain constraint.  On a grid, the box: w is on every box face that v is on.
+    On a mesh, a boundary vertex v (its boundary triangles ``(v, B[k, 0], B[k, 1])``,
+    ``k < nb``) moves only along a boundary edge vw, onto a w in the plane of every one of
+    them (exactly): within its flat patch, along its crease, and a corner never."""
     lk = S.lock[v]
     if lk & LOCK_ALL:
         return False
+    if lk & LOCK_MESH:
+        if nb < 0:
+            return False
+        on_edge = False
+        for k in range(nb):
+            a, b = B[k, 0], B[k, 1]
+            if a == w or b == w:
+                on_edge = True
+            elif _orient(S.P, S.ctr[C_FLOAT] != 0, v, a, b, w) != 0.0:
+                return False
+        return on_edge
     for a in range(3):
         if (lk >> a) & 1 and S.P[w, a] != S.P[v, a]:
             return False
@@ -193,6 +240,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
     ``tol_inf`` (negative: no limit) or cannot beat ``bound``.  ``shared``: the number of
     v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w)."""
     P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
+    flt = S.ctr[C_FLOAT] != 0
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
     for i in range(n):
@@ -201,11 +249,16 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
         if h:
             shared += 1
             continue
-        if G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
+        if flt:  # float coordinates: the robust predicate on the tet as it would be
+            s = sc[i] & 3
+            if _orient(P, True, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
+                       w if s == 3 else Q[i, 3]) <= 0.0:
+                return INF, INF, shared
+        elif G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
             return INF, INF, shared
     if shared == 0:
         return INF, INF, shared
-    i, val = _locate_star(P, f, Q, sc, kw, n, w, v, -1)
+    i, val = _locate_star(P, flt, f, Q, sc, kw, n, w, v, -1)
     if i < 0:
         return INF, INF, shared
     r = f[v] - val
@@ -218,7 +271,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
         if (mx if use_max else new - old) > bound:
             return INF, INF, shared
         p = pbuf[k]
-        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, phome[k])
+        i, val = _locate_star(P, flt, f, Q, sc, kw, n, w, p, phome[k])
         if i < 0:
             return INF, INF, shared
         r = f[p] - val
@@ -241,7 +294,11 @@ def _best(S, v, sc, G, mark, tol_inf):
     Q, kw = S.Q, S.kw
     # the squared residuals that the collapse replaces (v's own is 0)
     m, old = _gather(S, sc, n, Q)
-    _planes(S.P, Q, sc, n, G)
+    nb = 0
+    if S.lock[v] & LOCK_MESH:  # on a mesh's boundary: its boundary triangles (``_allowed``)
+        nb = _boundary_faces(Q, sc, n, v, S.B)
+    if S.ctr[C_FLOAT] == 0:
+        _planes(S.P, Q, sc, n, G)
     use_max = S.ctr[C_MAXKEY] != 0
     S.stamp[0] += 1
     stamp = S.stamp[0]
@@ -255,7 +312,7 @@ def _best(S, v, sc, G, mark, tol_inf):
             if w < 0 or mark[w] == stamp:
                 continue
             mark[w] = stamp
-            if not S.isv[w] or not _allowed(S, v, w):
+            if not S.isv[w] or not _allowed(S, v, w, S.B, nb):
                 continue
             c, delta, shared = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
             if c == INF:
@@ -278,7 +335,7 @@ def _collapse(S, v, w, sc, n):
     # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
     for k in range(-1, m):
         p = v if k < 0 else pbuf[k]
-        i, val = _locate_star(P, f, Q, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
+        i, val = _locate_star(P, S.ctr[C_FLOAT] != 0, f, Q, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
         S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
         r = f[p] - val
         S.acc[0] += r * r - res[p] * res[p]
@@ -479,6 +536,7 @@ def _weights(S):
     """For every point, the 4 vertices and barycentric weights of the tet that holds it
     (a vertex: itself with weight 1)."""
     N = S.P.shape[0]
+    flt = S.ctr[C_FLOAT] != 0
     verts = np.empty((N, 4), np.int64)
     w = np.zeros((N, 4))
     for p in range(N):
@@ -488,11 +546,11 @@ def _weights(S):
             w[p, 0] = 1.0
             continue
         q0, q1, q2, q3 = S.T[t, 0], S.T[t, 1], S.T[t, 2], S.T[t, 3]
-        l0 = _orient(S.P, p, q1, q2, q3)
-        l1 = _orient(S.P, q0, p, q2, q3)
-        l2 = _orient(S.P, q0, q1, p, q3)
-        l3 = _orient(S.P, q0, q1, q2, p)
-        D = float(l0 + l1 + l2 + l3)
+        l0 = _orient(S.P, flt, p, q1, q2, q3)
+        l1 = _orient(S.P, flt, q0, p, q2, q3)
+        l2 = _orient(S.P, flt, q0, q1, p, q3)
+        l3 = _orient(S.P, flt, q0, q1, q2, p)
+        D = l0 + l1 + l2 + l3
         verts[p, 0], verts[p, 1], verts[p, 2], verts[p, 3] = q0, q1, q2, q3
         w[p, 0], w[p, 1], w[p, 2], w[p, 3] = l0 / D, l1 / D, l2 / D, l3 / D
     return verts, w

@@ -4,8 +4,10 @@ Input formats (:func:`load`):
 
 * ``.vti`` (VTK image data) and legacy ``.vtk`` files holding structured points:
   a regular grid; it takes the exact integer path and keeps its origin and spacing;
-* ``.vtu``, ``.vtp``, ``.vts``, ``.vtr`` and other legacy ``.vtk`` datasets:
-  scattered points with a point-data array;
+* ``.vtu`` and legacy ``.vtk`` unstructured grids with tetrahedra: a tetrahedral mesh, whose
+  cells are its domain (possibly non-convex); other solid cell types are refused;
+* ``.vtu``, ``.vtp``, ``.vts``, ``.vtr`` and other legacy ``.vtk`` datasets without
+  tetrahedra: scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
   (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
 * ``.npy`` (a 3-D array; origin 0, spacing 1) and Zarr stores (``.zarr``, geometry from the
@@ -48,6 +50,7 @@ from __future__ import annotations
 
 import contextlib
 import inspect
+import itertools
 import json
 import logging
 import numbers
@@ -310,7 +313,49 @@ def _vtk_data(ds, arrays, col, p, name) -> PointData:
         i, j, k = data.ijk.T
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
-    return scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
+    data = scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
+    data.tets = _vtk_tetrahedra(ds, p)
+    return data
+
+
+#: VTK's 3-D cell types other than the tetrahedron and the voxel, by name, which a mesh may not hold
+_VTK_SOLID_CELLS = {12: "hexahedron", 13: "wedge", 14: "pyramid", 15: "pentagonal prism",
+                    16: "hexagonal prism", 24: "quadratic tetrahedron", 25: "quadratic hexahedron",
+                    42: "polyhedron"}
+
+
+def _vtk_tetrahedra(ds, p):
+    """The tetrahedra of an unstructured grid as (M, 4) point ids: its VTK_TETRA cells, and
+    its VTK_VOXEL cells (axis-aligned boxes) split by the Kuhn split into 6 tetrahedra each
+    (all along the same diagonal, so that neighbouring voxels split their shared faces
+    alike); None when it has neither (its points are then scattered data).  Cells of lower
+    dimension (boundary triangles, edges, vertices) do not change the domain and are not
+    used; another solid cell type is refused with one line."""
+    import warnings
+
+    from vtkmodules.util.numpy_support import vtk_to_numpy
+
+    if not ds.IsA("vtkUnstructuredGrid") or ds.GetNumberOfCells() == 0:
+        return None
+    with warnings.catch_warnings():  # VTK 9.6 renames it GetCellTypes; older VTK's GetCellTypes differs
+        warnings.simplefilter("ignore", DeprecationWarning)
+        types = vtk_to_numpy(ds.GetCellTypesArray()).astype(np.int64)
+    solid = sorted(set(types.tolist()) & set(_VTK_SOLID_CELLS))
+    if solid:
+        k = int(np.sum(types == solid[0]))
+        raise InputError(f"{str(p)!r} has {k} {_VTK_SOLID_CELLS[solid[0]]} cells (VTK type {solid[0]}): trivsel "
+                         "reduces meshes of tetrahedra only; split them into tetrahedra first")
+    tet, vox = np.flatnonzero(types == 10), np.flatnonzero(types == 11)
+    if len(tet) == 0 and len(vox) == 0:
+        return None
+    cells = ds.GetCells()
+    offsets = vtk_to_numpy(cells.GetOffsetsArray()).astype(np.int64)
+    conn = vtk_to_numpy(cells.GetConnectivityArray()).astype(np.int64)
+    # a voxel's corner i + 2 j + 4 k is at (i, j, k): a Kuhn path from corner 0 to corner 7
+    # sets one axis bit after another (the orientation is fixed when the mesh is checked)
+    paths = [[0, 1 << a, (1 << a) | (1 << b), 7] for a, b, _ in itertools.permutations(range(3))]
+    return np.concatenate([conn[offsets[tet][:, None] + np.arange(4)],
+                           conn[offsets[vox][:, None] + np.arange(8)][:, paths].reshape(-1, 4)])
 
 
 def _check_vtk_header_geometry(p):

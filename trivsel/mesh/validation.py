@@ -65,7 +65,10 @@ def _det3(u, v, w):
 
 
 def check_mesh(tm, *, buckets: bool = True, hull_volume: float | None = None, rtol: float = 1e-9):
-    """Raise :class:`MeshInvalid` unless ``tm`` satisfies every invariant listed above."""
+    """Raise :class:`MeshInvalid` unless ``tm`` satisfies every invariant listed above (a
+    :class:`trivsel.decimation.Decimation`: its own :meth:`~trivsel.decimation.Decimation.check`)."""
+    if not hasattr(tm, "live_ids"):
+        return tm.check()
     S = tm.S
     ids = tm.live_ids()
     tets = S.tets[ids].astype(np.int64)

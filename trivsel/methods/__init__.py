@@ -31,8 +31,12 @@ options of :class:`~trivsel.options.Options` apply to them) share the top-down r
 for it ``GREEDY_QUEUE`` (whether the mesh keeps the per-tetrahedron candidate queue of
 error-driven insertion), ``KERNEL`` (the driver compiled into
 :mod:`trivsel.mesh.entries`), ``needs_curvature``, ``rank``, ``start`` and ``advance``.
-``decimate`` removes points from the full grid with the kernels of
+``decimate`` removes points from the full mesh (a grid's Kuhn split, the Delaunay
+tetrahedra of scattered points, or a mesh's own tetrahedra) with the kernels of
 :mod:`trivsel.decimation`.
+
+``method="auto"`` is not a module: :func:`trivsel.options.choose_method` resolves it
+before the options are checked.
 
 Adding a method is one module here and one line in :data:`METHODS`.
 """

@@ -6,8 +6,11 @@ half-edge collapse onto a neighbouring point raises the sum of squared residuals
 reached (:mod:`trivsel.decimation`).  The vertices stay data points: the result is a
 true selection, with the data values at its vertices (or fitted ones with
 ``values="fit"``).  Aims at E_RMS, or with ``criterion="max"`` at E_inf (the
-collapse that leaves the smallest largest residual first); grid data only.  The
-options of curvature, ranking and swapping do not apply.
+collapse that leaves the smallest largest residual first).  On a grid it starts from
+the Kuhn split; on scattered points from their Delaunay tetrahedralisation, and on a mesh
+read with its cells from those cells, keeping the domain's boundary exactly (the
+collapses are decided by robust predicates on the float coordinates).  The options of
+curvature, ranking and swapping do not apply.
 """
 
 from __future__ import annotations
@@ -41,17 +44,19 @@ def check_options(options):
 
 
 def check(data, options):
-    """Grid data only (the collapses are tested on integer grid coordinates)."""
-    if not data.is_grid:
-        raise InputError("method 'decimate' needs grid data (a .vti, NIfTI, NRRD or array volume); "
-                         "scattered points: use 'greedy' or 'paper'")
+    """Any data: a grid, scattered points or a tetrahedral mesh."""
 
 
 def memory(data, options):
     """Peak memory, as ``[(bytes, what), ...]``."""
+    from ..resources import DELAUNAY_BYTES_PER_POINT
+
     N = data.n_points
     per_point = BYTES_PER_POINT + (FIT_BYTES_PER_POINT if "fit" in options.values else 0)
-    return [(per_point * float(N), f"decimating {N} points")]
+    need = [(per_point * float(N), f"decimating {N} points")]
+    if not data.is_grid and data.tets is None:
+        need.append((DELAUNAY_BYTES_PER_POINT * float(N), f"the Delaunay tetrahedra of {N} scattered points"))
+    return need
 
 
 def compile_kernels(part=None):
@@ -71,7 +76,10 @@ def run(problem):
         raise InputError("method 'decimate' cannot take a prescribed boundary; use 'greedy' or 'paper'")
     N = data.n_points
     interior = data.interior_mask()
-    n_fixed = int(np.sum(~interior)) if opts.candidates == "interior" else 8
+    if opts.candidates == "interior":
+        n_fixed = int(np.sum(~interior))
+    else:  # the box's corners; off the grid, at least one tetrahedron
+        n_fixed = 8 if data.is_grid else 4
     targets = problem.targets()
     for m in targets:
         if m < n_fixed:
@@ -90,7 +98,13 @@ def run(problem):
     notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
     t_total = time.perf_counter() - problem.t_start
     timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
-    fixed = ~interior if opts.candidates == "interior" else np.isin(np.arange(N), cube_corners(data.shape))
+    if opts.candidates == "interior":
+        fixed = ~interior
+    elif data.is_grid:
+        fixed = np.isin(np.arange(N), cube_corners(data.shape))
+    else:  # the vertices no collapse could remove
+        fixed = np.zeros(N, bool)
+        fixed[selected[:snaps[0].n_selected]] = True
     order = selected[~fixed[selected]]
     return MethodRun(snapshots=snaps, selected=snaps[-1].selected, curvature=None, order=order,
                      timings=timings, stats=stats, notes=notes)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .insertion import insertion_protocol
+from .insertion import check_domain, insertion_protocol
 
 NAME = "greedy"
 #: Squared residuals as the swap criterion, boundary 2-2 flips, at most 6 flips per
@@ -34,6 +34,7 @@ def needs_curvature(options):
 
 def check(data, options):
     """Every option combination runs (the curvature and ranking options do not apply)."""
+    check_domain(NAME, data)
 
 
 def rank(data, candidates, options, *, tets=None, threads=1):

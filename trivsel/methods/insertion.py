@@ -35,9 +35,17 @@ from ..triangulation import (box_tetrahedra, boundary_cone, check_closed_surface
                              hull_triangles, scattered_start)
 from .protocol import MethodRun, requested_fractions, unreached
 
-__all__ = ["run_insertion", "insertion_memory", "insertion_protocol"]
+__all__ = ["run_insertion", "insertion_memory", "insertion_protocol", "check_domain"]
 
 log = logging.getLogger("trivsel")
+
+
+def check_domain(name, data):
+    """Insertion starts from the convex hull of the points: a mesh read with its cells, whose
+    domain may not be convex, is refused rather than silently re-triangulated."""
+    if getattr(data, "tets", None) is not None:
+        raise InputError(f"method {name!r} triangulates the points' convex hull and would drop the mesh's "
+                         f"{len(data.tets)} tetrahedra: use method 'decimate' (or 'auto') for a mesh")
 
 
 def insertion_memory(method, data, options):

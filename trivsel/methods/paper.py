@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..exceptions import InputError
-from .insertion import insertion_protocol
+from .insertion import check_domain, insertion_protocol
 
 NAME = "paper"
 #: Section 4's criterion (eq. 14), swapping until nothing improves, interior flips only.
@@ -35,6 +35,7 @@ def needs_curvature(options):
 
 def check(data, options):
     """Reject option combinations this method cannot run on ``data``."""
+    check_domain(NAME, data)
     if options.neighbourhood == "box" and not data.is_grid:
         raise InputError("neighbourhood 'box' needs grid data")
     if options.ranking == "analytic" and "function" not in data.meta:

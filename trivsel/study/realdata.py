@@ -369,13 +369,17 @@ def vtk_input(data, split, scale):
     ----------
     data : PointData
         Grid data.
-    split : {"pv5", "kuhn6"}
-        pyvista's ``ImageData.triangulate()`` (5 tets per cell) or the Kuhn split (6).
+    split : {"pv5", "kuhn6", "cells"}
+        pyvista's ``ImageData.triangulate()`` (5 tets per cell) or the Kuhn split (6) of a grid;
+        ``"cells"``: the tetrahedra of a mesh (``data.tets``), or the Delaunay tetrahedra of
+        scattered points.
     scale : float
         Weight of the value in VTK's quadric.
     """
     if split == "kuhn6":
         return tet_grid(data, scalar_scale=scale)
+    if split == "cells":
+        return tet_grid(data, tets=data.tets, scalar_scale=scale)
     import pyvista as pv
 
     img = pv.ImageData(dimensions=data.shape, spacing=tuple(data.spacing), origin=tuple(data.origin))

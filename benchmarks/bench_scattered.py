@@ -1,0 +1,180 @@
+#!/usr/bin/env python
+"""``decimate`` against VTK's tetrahedral decimation off the grid: scattered points and meshes.
+
+Inputs, from real volumes that ship in the nilearn and dipy wheels (loaded as
+``benchmarks/bench_realdata.py`` loads them, :func:`trivsel.study.realdata.load_volume`):
+
+* ``<volume>/scattered``: ``--points`` points at uniform random positions (seed 0) in the
+  volume's box, with the volume's values trilinearly interpolated there; trivsel and VTK
+  both start from their Delaunay tetrahedra;
+* ``<volume>/vtu``: the same points and their Delaunay tetrahedra written to a ``.vtu`` and
+  read back with ``trivsel.load`` (a tetrahedral mesh: its cells are its domain);
+* ``icbm152/mask``: a non-convex mesh, the Kuhn split of the cells of the ICBM152 crop whose
+  eight voxels are all above 30 % of its maximum (the brain's tissue), with the voxel values.
+
+For each input and kept fraction, VTK (``vtkUnstructuredGridQuadricDecimation`` on the same
+tetrahedra) runs as in ``bench_realdata.py``: every weight of the value in its quadric is
+screened with seed 0, the best is run again with ``--repeats - 1`` more seeds, and the medians
+are kept.  Points outside VTK's mesh (its boundary moves) are scored at the nearest point of
+its boundary, not dropped.  trivsel ``decimate`` then runs at VTK's median vertex count, with
+data values and with fitted values.
+
+Printed: trivsel's E_RMS (fitted values) over VTK's and over VTK's with refitted values; E_inf
+(data values) over VTK's; trivsel's seconds (``reduce``'s total: its Delaunay, the collapses and
+the fit) over VTK's (its Delaunay, ``pv.PolyData(P).delaunay_3d()``, for scattered input, plus
+the filter's ``Update()``), each median of its runs in this process; and whether trivsel kept the
+domain: its mesh's volume against the input mesh's (relative difference) and its validity
+(:func:`trivsel.decimation.tetmesh.check_mesh_keeps_domain`).
+
+    python benchmarks/bench_scattered.py                          # 20k points, 3 volumes (about 15 min)
+    python benchmarks/bench_scattered.py --points 100000 --volumes icbm152 --fractions 0.05
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+
+def trilinear(grid, points):
+    """The grid data's trilinear interpolant at ``points``."""
+    from scipy.interpolate import RegularGridInterpolator
+
+    axes = [grid.origin[a] + grid.spacing[a] * np.arange(grid.shape[a]) for a in range(3)]
+    return RegularGridInterpolator(axes, grid.values.reshape(grid.shape))(points)
+
+
+def scattered_sample(grid, n, seed=0):
+    from trivsel.data import scattered
+
+    lo = np.asarray(grid.origin, float)
+    hi = lo + np.asarray(grid.spacing) * (np.asarray(grid.shape) - 1)
+    p = np.random.default_rng(seed).uniform(lo, hi, (n, 3))
+    return scattered(p, trilinear(grid, p), name="scattered")
+
+
+def as_vtu(data, folder):
+    """The points and their Delaunay tetrahedra written to a .vtu and read back as a mesh."""
+    import pyvista as pv
+
+    import trivsel
+    from trivsel.triangulation import start_tetrahedra
+
+    tets = start_tetrahedra(data.points)
+    g = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, data.points)
+    g.point_data["value"] = data.values
+    path = Path(folder) / "delaunay.vtu"
+    g.save(path)
+    return trivsel.load(path)
+
+
+def brain_mask_mesh(grid, level=0.3):
+    """The Kuhn split of the cells whose 8 voxels are all above ``level`` times the maximum."""
+    from trivsel.data import scattered
+    from trivsel.triangulation import kuhn_tetrahedra
+
+    tets = kuhn_tetrahedra(grid.shape)
+    inside = grid.values > level * grid.values.max()
+    cells = tets.reshape(-1, 6, 4)
+    corner = np.stack([grid.ijk[cells[:, 0, 0]] + np.array(o) for o in np.ndindex(2, 2, 2)], 1)
+    keep = inside[np.ravel_multi_index(corner.reshape(-1, 3).T, grid.shape)].reshape(-1, 8).all(axis=1)
+    tets = cells[keep].reshape(-1, 4)
+    used = np.unique(tets)
+    remap = np.full(grid.n_points, -1)
+    remap[used] = np.arange(len(used))
+    d = scattered(grid.points[used], grid.values[used], name="mask")
+    d.tets = remap[tets]
+    return d
+
+
+def vtk_delaunay_seconds(points, repeats):
+    import pyvista as pv
+
+    out = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        pv.PolyData(points).delaunay_3d()
+        out.append(time.perf_counter() - t0)
+    return statistics.median(out)
+
+
+def measure(label, data, fraction, repeats, say):
+    import trivsel
+    from trivsel.decimation.tetmesh import check_mesh_keeps_domain, mesh_volume, start_mesh
+    from trivsel.study.realdata import run_vtk
+
+    vtk = run_vtk(data, fraction, repeats=repeats, splits=("cells",), say=say)
+    K = int(round(vtk["n_vertices"]))
+    vtk_seconds = vtk["seconds"] + (vtk_delaunay_seconds(data.points, repeats) if data.tets is None else 0.0)
+    runs = []
+    for k in range(repeats):
+        t0 = time.perf_counter()
+        r = trivsel.reduce(data, count=K, method="decimate", values=["data", "fit"])
+        runs.append(time.perf_counter() - t0)
+    s = r.snapshots[-1]
+    before, _ = start_mesh(data)
+    check_mesh_keeps_domain(data.points, before, s.tets)
+    v0 = mesh_volume(data.points, before)
+    return {"input": label, "fraction": fraction, "N": data.n_points, "K": K,
+            "fit_rms_over_vtk": s.fit["errors"]["E_rms"] / vtk["E_rms"],
+            "fit_rms_over_vtk_refit": s.fit["errors"]["E_rms"] / vtk["refit_E_rms"],
+            "inf_over_vtk": s.errors["E_inf"] / vtk["E_inf"],
+            "seconds_over_vtk": statistics.median(runs) / vtk_seconds,
+            "volume_change": abs(mesh_volume(data.points, s.tets) - v0) / v0,
+            "vtk_outside": int(vtk["n_outside"]),
+            "trivsel_seconds": statistics.median(runs), "vtk_seconds": vtk_seconds,
+            "fit_E_rms": s.fit["errors"]["E_rms"], "vtk_E_rms": vtk["E_rms"], "vtk_refit_E_rms": vtk["refit_E_rms"],
+            "E_inf": s.errors["E_inf"], "vtk_E_inf": vtk["E_inf"]}
+
+
+def main(argv=None):
+    from trivsel.study.realdata import load_volume
+
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--volumes", nargs="+", default=["icbm152", "statmap", "aniso"])
+    ap.add_argument("--points", nargs="+", type=int, default=[20000])
+    ap.add_argument("--fractions", nargs="+", type=float, default=[0.1, 0.05])
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--no-mask", action="store_true", help="skip the non-convex brain-mask mesh")
+    ap.add_argument("--no-vtu", action="store_true", help="skip the .vtu meshes")
+    a = ap.parse_args(argv)
+
+    def say(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for name in a.volumes:
+            grid = load_volume(name)
+            inputs = []
+            for n in a.points:
+                d = scattered_sample(grid, n)
+                inputs.append((f"{name}/scattered {n}", d))
+                if not a.no_vtu:
+                    inputs.append((f"{name}/vtu {n}", as_vtu(d, tmp)))
+            if name == "icbm152" and not a.no_mask:
+                inputs.append((f"{name}/mask", brain_mask_mesh(grid)))
+            for label, d in inputs:
+                for fr in a.fractions:
+                    say(f"{label}, {fr:g} ...")
+                    rows.append(measure(label, d, fr, a.repeats, say))
+    cols = ["input", "fraction", "N", "K", "fit_rms_over_vtk", "fit_rms_over_vtk_refit", "inf_over_vtk",
+            "seconds_over_vtk", "volume_change", "vtk_outside"]
+    print("| " + " | ".join(cols) + " |")
+    print("|" + "---|" * len(cols))
+    for r in rows:
+        print("| " + " | ".join(f"{r[c]:.3g}" if isinstance(r[c], float) else str(r[c]) for c in cols) + " |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

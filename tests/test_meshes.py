@@ -1,0 +1,232 @@
+"""`decimate` off the grid: scattered points (their Delaunay tetrahedra) and tetrahedral
+meshes read with their cells, whose domain (possibly non-convex) must be kept exactly."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+import trivsel
+from trivsel.data import scattered
+from trivsel.decimation import Decimation
+from trivsel.decimation.tetmesh import check_mesh_keeps_domain, mesh_volume, start_mesh
+from trivsel.exceptions import InputError
+from trivsel.triangulation import boundary_triangles, kuhn_tetrahedra
+
+
+def smooth(p):
+    return np.sin(3 * p[:, 0]) + p[:, 1] ** 2 - np.cos(2 * p[:, 2])
+
+
+def grid_mesh(shape, keep_cell, *, jitter=0.0, origin=0.0, seed=0):
+    """The Kuhn split of the unit cells of ``shape`` points for which ``keep_cell(i, j, k)``
+    holds, over the points its tetrahedra use, interior points jittered (a float mesh)."""
+    pts = np.stack(np.meshgrid(*(np.arange(s, dtype=float) for s in shape), indexing="ij"), -1).reshape(-1, 3)
+    tets = kuhn_tetrahedra(shape)
+    cell = np.floor(pts[tets].mean(axis=1)).astype(int)
+    tets = tets[np.array([keep_cell(*c) for c in cell])]
+    used = np.unique(tets)
+    remap = np.full(len(pts), -1)
+    remap[used] = np.arange(len(used))
+    pts, tets = pts[used], remap[tets]
+    inner = np.ones(len(pts), bool)
+    inner[np.unique(boundary_triangles(tets))] = False
+    rng = np.random.default_rng(seed)
+    pts[inner] += rng.uniform(-jitter, jitter, (inner.sum(), 3))
+    return pts + origin, tets
+
+
+def l_shape(n=6, **kw):
+    """An L-shaped prism: (2n x 2n x n cells) without the quadrant x, y >= n."""
+    return grid_mesh((2 * n + 1, 2 * n + 1, n + 1), lambda i, j, k: not (i >= n and j >= n), **kw)
+
+
+def hollow_cube(n=6, **kw):
+    """A cube of (3n)^3 cells with a cubic cavity of n^3 cells in its middle."""
+    return grid_mesh((3 * n + 1,) * 3, lambda i, j, k: not all(n <= c < 2 * n for c in (i, j, k)), **kw)
+
+
+def write_vtu(path, pts, tets, values):
+    import pyvista as pv
+
+    g = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, pts)
+    g.point_data["value"] = values
+    g.save(path)
+
+
+def corner_vertices(p, tets):
+    """The boundary vertices whose boundary triangles span three or more planes."""
+    b = boundary_triangles(tets)
+    n = np.cross(p[b[:, 1]] - p[b[:, 0]], p[b[:, 2]] - p[b[:, 0]])
+    n = np.round(n / np.linalg.norm(n, axis=1, keepdims=True), 9)
+    planes = {}
+    for tri, normal in zip(b, map(tuple, n)):
+        for v in tri:
+            planes.setdefault(int(v), set()).add(normal)
+    return np.array(sorted(v for v, s in planes.items() if len(s) >= 3))
+
+
+def decimated(pts, f, tets=None, count=None):
+    d = scattered(pts, f)
+    d.tets = tets
+    t0, located = start_mesh(d)
+    dec = Decimation.on_mesh(pts, t0, f, located=located)
+    dec.run(count if count is not None else len(pts) // 10)
+    return t0, dec
+
+
+# ----------------------------------------------------------------------------- validity
+
+
+def test_scattered_points_keep_their_hull_and_every_point_inside():
+    rng = np.random.default_rng(3)
+    p = rng.random((3000, 3))
+    p[:8] = np.indices((2, 2, 2)).reshape(3, -1).T  # the unit cube is the hull
+    t0, dec = decimated(p, smooth(p), count=200)
+    assert dec.n_vertices == 200
+    check_mesh_keeps_domain(p, t0, dec.tetrahedra())
+    assert mesh_volume(p, dec.tetrahedra()) == pytest.approx(1.0, rel=1e-12)
+    verts, w = dec.point_weights()
+    assert (w >= 0).all() and np.allclose(w.sum(axis=1), 1.0)
+    # every residual is that of the interpolant of the tetrahedron holding the point
+    L = np.einsum("ij,ij->i", w, smooth(p)[verts])
+    assert np.allclose(smooth(p) - L, dec.residuals(), atol=1e-12)
+
+
+@pytest.mark.parametrize("shape", [l_shape, hollow_cube])
+def test_non_convex_meshes_keep_their_domain(shape):
+    p, t = shape(4, jitter=0.2, origin=1e6)  # far from the origin: the predicates' exact path decides
+    f = smooth(p - 1e6)
+    t0, dec = decimated(p, f, t, count=len(p) // 8)
+    out = dec.tetrahedra()
+    check_mesh_keeps_domain(p, t0, out)
+    assert mesh_volume(p, out) == pytest.approx(mesh_volume(p, t0), rel=1e-9)
+    # the domain's corners (where three or more boundary planes meet) never move
+    assert set(corner_vertices(p, t0).tolist()) <= set(dec.vertices().tolist())
+
+
+def test_hollow_cube_keeps_its_cavity():
+    p, t = hollow_cube(3)
+    t0, dec = decimated(p, smooth(p), t, count=60)
+    out = dec.tetrahedra()
+    check_mesh_keeps_domain(p, t0, out)
+    assert mesh_volume(p, out) == pytest.approx(26 * 27, rel=1e-12)
+    cavity = boundary_triangles(out)
+    inner = np.all((p[cavity] >= 3) & (p[cavity] <= 6), axis=(1, 2))
+    assert inner.sum() >= 12  # the cavity's six square faces, two triangles at least each
+
+
+@pytest.mark.parametrize("kind", ["nearly coplanar", "cospherical", "lattice"])
+def test_degenerate_point_sets(kind):
+    rng = np.random.default_rng(5)
+    if kind == "nearly coplanar":
+        p = np.c_[rng.random((400, 2)), 1e-9 * rng.random(400)]
+        p[:4, 2] = [0.0, 1.0, 0.5, 0.25]  # a few points off the near-plane
+    elif kind == "cospherical":
+        u = rng.normal(size=(300, 3))
+        p = np.r_[u / np.linalg.norm(u, axis=1, keepdims=True), [[0.0, 0.0, 0.0]]]
+    else:
+        p = np.indices((7, 7, 7)).reshape(3, -1).T.astype(float)
+    t0, dec = decimated(p, smooth(p), count=len(p) // 4)
+    check_mesh_keeps_domain(p, t0, dec.tetrahedra())
+    verts, w = dec.point_weights()
+    assert (w >= 0).all()
+
+
+def test_lattice_points_keep_the_box():
+    p = np.indices((7, 7, 7)).reshape(3, -1).T.astype(float)
+    r = trivsel.reduce(scattered(p, smooth(p)), count=40, method="decimate")
+    s = r.snapshots[-1]
+    assert s.n_selected == 40
+    assert mesh_volume(p, s.tets) == pytest.approx(216.0, rel=1e-12)
+
+
+# ----------------------------------------------------------------------------- quality and API
+
+
+def test_decimate_beats_greedy_on_scattered_points_with_fitted_values():
+    rng = np.random.default_rng(1)
+    p = rng.random((4000, 3))
+    d = scattered(p, smooth(p) + 0.3 * np.sin(9 * p[:, 1]))
+    e = {m: trivsel.reduce(d, fractions=[0.1], method=m, values=("data", "fit")).snapshots[-1].fit["errors"]
+         for m in ("greedy", "decimate")}
+    assert e["decimate"]["E_rms"] < 0.9 * e["greedy"]["E_rms"]
+
+
+def test_auto_runs_decimate_on_data_and_the_paper_on_functions():
+    rng = np.random.default_rng(2)
+    p = rng.random((300, 3))
+    assert trivsel.reduce(scattered(p, smooth(p)), fractions=[0.2]).options["method"] == "decimate"
+    assert trivsel.reduce(p[:, 0].reshape(-1)[:27].reshape(3, 3, 3), fractions=[0.5]).options["method"] == "decimate"
+    assert trivsel.reduce(4, n=4, fractions=[0.5]).options["method"] == "paper"
+    assert trivsel.reduce(4, n=4, fractions=[0.5], method="auto").options["method"] == "paper"
+
+
+def test_mesh_file_through_the_cli(tmp_path):
+    import pyvista as pv
+
+    p, t = l_shape(3, jitter=0.15)
+    f = smooth(p)
+    write_vtu(tmp_path / "l.vtu", p, t, f)
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(tmp_path / "l.vtu"), "--fractions", "0.3",
+                        "--values", "data", "fit", "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    result = json.loads((out / "result.json").read_text())
+    assert result["options"]["method"] == "decimate"
+    m = pv.read(out / "mesh_0.3.vtu")
+    ids = m.point_data["original_index"]
+    assert np.array_equal(m.points, p[ids])  # the file's point ids, the file's coordinates
+    tets = ids[m.cells_dict[pv.CellType.TETRA]]
+    check_mesh_keeps_domain(p, t, tets)
+
+
+def test_mesh_in_a_notebook_is_a_mesh():
+    import pyvista as pv
+
+    p, t = l_shape(3)
+    g = pv.UnstructuredGrid({pv.CellType.TETRA: t}, p)
+    g.point_data["value"] = smooth(p)
+    s = trivsel.reduce(g, fractions=[0.4]).snapshots[-1]
+    check_mesh_keeps_domain(p, t, s.tets)
+
+
+# ----------------------------------------------------------------------------- refusals
+
+
+def test_bad_meshes_are_refused_with_one_line(tmp_path):
+    import pyvista as pv
+
+    p, t = l_shape(2)
+    f = smooth(p)
+    flat = t.copy()
+    flat[0] = [0, 1, 2, 2]
+    cases = {"repeats a vertex": flat}
+    coplanar = np.flatnonzero(p[:, 2] == 0)[:4]
+    cases["is flat"] = np.r_[t, [coplanar]]
+    cases["is a face of 3"] = np.r_[t, t[:1]]
+    for message, tets in cases.items():
+        with pytest.raises(InputError, match=message) as err:
+            d = scattered(p, f)
+            d.tets = tets
+            trivsel.reduce(d, fractions=[0.5])
+        assert "\n" not in str(err.value)
+    hexa = pv.UnstructuredGrid({pv.CellType.HEXAHEDRON: np.array([[0, 1, 2, 3, 4, 5, 6, 7]])},
+                               np.indices((2, 2, 2)).reshape(3, -1).T.astype(float)[[0, 4, 6, 2, 1, 5, 7, 3]])
+    hexa.point_data["value"] = np.arange(8.0)
+    hexa.save(tmp_path / "hex.vtu")
+    with pytest.raises(InputError, match="hexahedron cells"):
+        trivsel.reduce(tmp_path / "hex.vtu", fractions=[0.5])
+    g = pv.UnstructuredGrid({pv.CellType.TETRA: t}, p)
+    g.point_data["value"] = f
+    with pytest.raises(InputError, match="would drop the mesh's"):
+        trivsel.reduce(g, fractions=[0.5], method="greedy")
+
+
+def test_duplicate_points_are_refused():
+    p = np.random.default_rng(0).random((50, 3))
+    p[7] = p[3]
+    with pytest.raises(InputError, match="duplicate point"):
+        trivsel.reduce(scattered(p, np.zeros(50)), count=10, method="decimate")
