@@ -48,11 +48,15 @@ def hollow_cube(n=6, **kw):
     return grid_mesh((3 * n + 1,) * 3, lambda i, j, k: not all(n <= c < 2 * n for c in (i, j, k)), **kw)
 
 
-def write_vtu(path, pts, tets, values):
+def write_vtu(path, pts, tets, values, **arrays):
+    """A .vtu of tetrahedra with the point array ``value`` and ``arrays``: point arrays by name,
+    or cell arrays (length ``len(tets)``)."""
     import pyvista as pv
 
     g = pv.UnstructuredGrid({pv.CellType.TETRA: tets}, pts)
     g.point_data["value"] = values
+    for name, a in arrays.items():
+        (g.cell_data if len(a) == len(tets) and len(a) != len(pts) else g.point_data)[name] = a
     g.save(path)
 
 
@@ -169,16 +173,20 @@ def test_mesh_file_through_the_cli(tmp_path):
 
     p, t = l_shape(3, jitter=0.15)
     f = smooth(p)
-    write_vtu(tmp_path / "l.vtu", p, t, f)
+    velocity = np.c_[p[:, 0], -p[:, 1], p[:, 2] ** 2]
+    write_vtu(tmp_path / "l.vtu", p, t, f, velocity=velocity, material=np.arange(len(t)) % 3)
     out = tmp_path / "out"
-    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(tmp_path / "l.vtu"), "--fractions", "0.3",
+    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(tmp_path / "l.vtu"), "--array", "value",
+                        "--fractions", "0.3",
                         "--values", "data", "fit", "--out", str(out)], capture_output=True, text=True)
     assert r.returncode == 0, r.stderr
     result = json.loads((out / "result.json").read_text())
-    assert result["options"]["method"] == "decimate"
+    assert result["options"]["method"] == "decimate" and result["data"]["tetrahedra"] == len(t)
+    assert any("cell data (material)" in n for n in result["notes"])
     m = pv.read(out / "mesh_0.3.vtu")
     ids = m.point_data["original_index"]
     assert np.array_equal(m.points, p[ids])  # the file's point ids, the file's coordinates
+    assert np.array_equal(m.point_data["velocity"], velocity[ids]) and "material" not in m.cell_data
     tets = ids[m.cells_dict[pv.CellType.TETRA]]
     check_mesh_keeps_domain(p, t, tets)
 

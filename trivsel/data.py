@@ -54,6 +54,12 @@ class PointData:
         The tetrahedra of a mesh read with its cells (a ``.vtu`` or ``.vtk``); its domain,
         possibly non-convex, is their union.  ``None``: the domain of scattered points is
         their convex hull.
+    point_arrays : dict or None
+        The input file's other point arrays (``{name: (N, ...) array}``), written for the
+        selected points beside ``value`` in the output meshes.
+    cell_arrays : tuple of str
+        The names of the input's cell arrays: the reduced mesh's cells are new, so they are
+        not carried (noted in the result).
     """
 
     points: np.ndarray
@@ -66,6 +72,8 @@ class PointData:
     meta: dict = field(default_factory=dict)
     file_index: np.ndarray | None = None
     tets: np.ndarray | None = None
+    point_arrays: dict | None = None
+    cell_arrays: tuple = ()
 
     def file_ids(self, indices):
         """The input file's point ids of the given (trivsel) point indices."""

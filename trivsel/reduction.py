@@ -124,6 +124,9 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     problem = Problem(data=data, options=opts, stop=scaling.stop_in(stop), boundary=boundary, threads=threads,
                       check=check, progress=scaling.progress_out(progress), t_start=t_start)
     out = method.run(problem)
+    if data_in.cell_arrays:
+        out.notes.append(f"the input's cell data ({', '.join(data_in.cell_arrays)}) is not in the output: the "
+                         "reduced mesh has other cells")
     return ReductionResult(data=data_in, selected=out.selected, curvature=scaling.curvature_out(out.curvature),
                            order=out.order, snapshots=[scaling.snapshot_out(s) for s in out.snapshots],
                            options={**opts.to_dict(), **stop_in}, timings=out.timings, stats=out.stats,

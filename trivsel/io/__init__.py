@@ -315,6 +315,9 @@ def _vtk_data(ds, arrays, col, p, name) -> PointData:
         return data
     data = scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
     data.tets = _vtk_tetrahedra(ds, p)
+    data.point_arrays = {k: v for k, v in arrays.items() if k != col and v.ndim <= 2 and len(v) == data.n_points}
+    cd = ds.GetCellData()
+    data.cell_arrays = tuple(cd.GetArrayName(i) or f"array {i}" for i in range(cd.GetNumberOfArrays()))
     return data
 
 
@@ -815,7 +818,9 @@ def snapshot_to_vtk(result, snapshot):
     in a ``.vti``/``.vtu``, its voxel's Fortran-order index in a NIfTI or NRRD volume;
     for ``--function`` grids the C-order index over (i, j, k)),
     ``curvature`` (K of eq. 10; not for ``method="greedy"``, which does not compute it)
-    and, with ``values="fit"``, ``fitted_value``.  Field data: ``fraction``.
+    and, with ``values="fit"``, ``fitted_value``; then the input's other point arrays
+    (:attr:`trivsel.data.PointData.point_arrays`) at the selected points, under their own names
+    (a name taken above is not repeated).  Field data: ``fraction``.
     """
     sel = np.unique(snapshot.tets)
     remap = np.full(result.data.n_points, -1, np.int64)
@@ -828,6 +833,8 @@ def snapshot_to_vtk(result, snapshot):
     arrays["original_index"] = result.data.file_ids(sel)
     if result.curvature is not None:  # greedy does not compute it
         arrays["curvature"] = result.curvature[sel]
+    for name, a in (result.data.point_arrays or {}).items():  # the input's other point arrays
+        arrays.setdefault(name, a[sel])
     return tetra_grid(result.data.points[sel], remap[snapshot.tets], arrays,
                       {"fraction": np.array([snapshot.fraction], np.float64)})
 
@@ -1238,6 +1245,7 @@ def _write_into(result, tmp, extra):
     info = {
         "data": {"name": result.data.name, "n_points": result.data.n_points, "grid": result.data.is_grid,
                  "shape": result.data.shape, "origin": result.data.origin, "spacing": result.data.spacing,
+                 "tetrahedra": None if result.data.tets is None else int(len(result.data.tets)),
                  **result.data.meta},
         "options": result.options,
         "timings": result.timings,
