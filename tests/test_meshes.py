@@ -238,3 +238,17 @@ def test_duplicate_points_are_refused():
     p[7] = p[3]
     with pytest.raises(InputError, match="duplicate point"):
         trivsel.reduce(scattered(p, np.zeros(50)), count=10, method="decimate")
+
+
+def test_a_mesh_on_a_float_lattice_takes_the_exact_integer_path():
+    from trivsel.decimation import C_FLOAT, lattice_coordinates
+
+    p, t = hollow_cube(2)
+    q = -3.7 + np.round(p).astype(int) * 0.1  # a grid written with spacing 0.1: not exact in binary
+    ijk = lattice_coordinates(q)
+    assert ijk is not None and np.array_equal(ijk, np.round(p).astype(int))
+    assert lattice_coordinates(q + 1e-9 * np.random.default_rng(0).random(q.shape)) is None  # a real shift
+    dec = Decimation.on_mesh(q, t, smooth(p))
+    assert dec.S.ctr[C_FLOAT] == 0
+    dec.run(40)
+    check_mesh_keeps_domain(q, t, dec.tetrahedra())

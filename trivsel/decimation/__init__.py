@@ -235,19 +235,31 @@ def _det3(u, v, w):
     return np.einsum("ij,ij->i", np.cross(u, v), w)
 
 
+#: How far (in units of the float spacing of the largest coordinate) a point may be from
+#: its lattice position and still count as on the lattice: the rounding of ``origin + i *
+#: spacing`` in whatever order a writer computed it, nothing a user would mean as a shift.
+LATTICE_ULPS = 64
+
+
 def lattice_coordinates(points):
-    """Integer coordinates ``ijk`` with ``points == origin + ijk * spacing`` exactly (in
-    float, per axis, as a grid's points are made), or None when the points are not on such
-    a lattice (or it is too large for exact integer predicates)."""
+    """Integer coordinates ``ijk`` with ``points = origin + ijk * spacing`` per axis, up to the
+    rounding of that formula in float (:data:`LATTICE_ULPS`), or None when the points are not
+    on such a lattice (or it has more than 2^20 steps per axis).  A mesh made from a grid,
+    written with a float spacing such as 0.1, is on a lattice."""
     p = np.asarray(points, np.float64)
     ijk = np.empty(p.shape, np.int64)
     for a in range(3):
         u = np.unique(p[:, a])
         if len(u) < 2:
             return None
-        step = float(np.min(np.diff(u)))
+        span = float(u[-1] - u[0])
+        steps = round(span / float(np.min(np.diff(u))))
+        if not 1 <= steps < 2**20:
+            return None
+        step = span / steps
         k = np.round((p[:, a] - u[0]) / step)
-        if k.max() >= 2**20 or not np.array_equal(u[0] + k * step, p[:, a]):
+        tol = LATTICE_ULPS * np.spacing(max(abs(float(u[0])), abs(float(u[-1])), span))
+        if np.max(np.abs(u[0] + k * step - p[:, a])) > tol:
             return None
         ijk[:, a] = k.astype(np.int64)
     return ijk
