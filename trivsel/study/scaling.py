@@ -178,7 +178,10 @@ def run_here(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads
     t0 = time.perf_counter()
     n_sel = _one_run(method, data, fraction, seed, threads)
     seconds = time.perf_counter() - t0
-    run_peak = _proc_status_mb("VmHWM") if reset else None
+    # VmHWM is the kernel's lazily kept high-water mark: pages returned with madvise (malloc
+    # trimming) and per-thread RSS counters can leave it a few MiB below the mark read at the
+    # reset, although the peak of the run cannot be lower than the size it started at
+    run_peak = max(_proc_status_mb("VmHWM"), base) if reset else None
     return dict(method=method, n=int(n), n_points=int(data.n_points), n_selected=int(n_sel), seconds=seconds,
                 base_mb=base, run_peak_mb=run_peak, peak_reset=reset, warmup_peak_mb=warmup_peak,
                 warmup_seconds=warmup, function=function, fraction=float(fraction), threads=int(threads))
@@ -242,7 +245,10 @@ def measure(method, n, *, function=4, fraction=0.1, warmup_n=4, seed=1, threads=
         tail = "\n".join(lines[-20:])
         raise RuntimeError(f"{' '.join(cmd)} failed (exit status {proc.returncode}"
                            f"{', killed after the timeout' if proc.returncode < 0 and timeout else ''}):\n{tail}")
-    result["process_peak_mb"] = _maxrss_mb(usage.ru_maxrss)
+    # resetting the high-water mark for the timed run also lowers what the kernel reports as
+    # the child's maximum resident size, so the peaks read before and after the reset count too
+    result["process_peak_mb"] = max(_maxrss_mb(usage.ru_maxrss), result.get("warmup_peak_mb") or 0.0,
+                                    result.get("run_peak_mb") or 0.0, result.get("base_mb") or 0.0)
     result["peak_mb"] = result["run_peak_mb"] if result.get("run_peak_mb") else result["process_peak_mb"]
     return result
 
