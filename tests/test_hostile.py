@@ -688,12 +688,63 @@ def test_blocks_success_rerun_and_a_limited_run(tmp_path):
     assert not list(out.rglob(TMP_PREFIX + "*")) and _processes_in(out) == []
 
 
+def test_blocks_nan_anywhere_is_refused_before_any_job(tmp_path):
+    """A non-finite value is found by reading the input through before the first run, not by
+    the job that reads it after others have run: one line, exit 2, no folder."""
+    v = np.fromfunction(lambda i, j, k: np.sin(i) + j * k / 10.0, (9, 9, 9)).astype(np.float32)
+    v[6, 6, 6] = np.inf  # inside block 1_1_1 only: no line or plane reads it
+    np.save(tmp_path / "inf.npy", v)
+    for extra in ([], ["-n"]):
+        code, err, _ = _run(["blocks", str(tmp_path / "inf.npy"), "--block", "4", "--tol-inf", "0.05", *extra,
+                             "--out", str(tmp_path / "o")])
+        assert code == 2
+        _one_line(err, f"non-finite value inf at grid index (6, 6, 6) of {str(tmp_path / 'inf.npy')!r}")
+        assert not (tmp_path / "o").exists()
+
+
+def test_blocks_stamp_sees_a_detached_nrrd_data_file_change(tmp_path):
+    """A .nhdr's samples are in its data file: changing them (the header untouched) is a
+    changed input, refused on a rerun in the same folder."""
+    import os
+
+    from trivsel.blocks import input_stamp, write_config
+
+    v = np.arange(125.0).reshape(5, 5, 5)
+    (tmp_path / "v.raw").write_bytes(v.astype("<f8").tobytes(order="F"))
+    (tmp_path / "v.nhdr").write_text("NRRD0004\ntype: double\ndimension: 3\nsizes: 5 5 5\nendian: little\n"
+                                     "encoding: raw\ndata file: v.raw\n\n")
+    out = tmp_path / "run"
+    write_config(out, {"input": str(tmp_path / "v.nhdr"), "block": 2, "tol_inf": 0.1})
+    before = _snapshot(out)
+    stamp = input_stamp(tmp_path / "v.nhdr")
+    (tmp_path / "v.raw").write_bytes((v + 1).astype("<f8").tobytes(order="F"))
+    st = os.stat(tmp_path / "v.raw")
+    os.utime(tmp_path / "v.raw", ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+    assert input_stamp(tmp_path / "v.nhdr")[:2] == stamp[:2] and input_stamp(tmp_path / "v.nhdr") != stamp
+    code, err, _ = _run(["blocks", str(tmp_path / "v.nhdr"), "--block", "2", "--tol-inf", "0.1", "--out", str(out)])
+    assert code == 2
+    _one_line(err, f"the input {str((tmp_path / 'v.nhdr').resolve())!r} changed since the blocked run in")
+    assert _snapshot(out) == before
+
+
 @pytest.mark.slow
 def test_blocks_failing_job_gives_its_own_message(tmp_path):
+    """A job that fails shows its own one-line reason.  The input's values were read through
+    when the folder's run was first set up; here they are changed afterwards in place (same
+    size and time, so the stamp cannot tell), and the one job that reads the bad value fails."""
+    import os
+
+    from trivsel.blocks import write_config
+
     v = np.fromfunction(lambda i, j, k: np.sin(i) + j * k / 10.0, (9, 9, 9))
+    src = tmp_path / "nan.npy"
+    np.save(src, v)
+    write_config(tmp_path / "o", {"input": str(src), "block": 4, "tol_inf": 0.05})
+    st = os.stat(src)
     v[6, 6, 6] = np.nan  # inside block 1_1_1 only: no line or plane reads it
-    np.save(tmp_path / "nan.npy", v)
-    r = _blocks(tmp_path / "o", source=(str(tmp_path / "nan.npy"),))
+    np.save(src, v)
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    r = _blocks(tmp_path / "o", source=(str(src),))
     assert r.returncode == 2
     _one_line(r.stderr, "job block 1_1_1 failed: non-finite value nan at grid index (6, 6, 6)")
     assert "logs/block/1_1_1.log" in r.stderr

@@ -520,12 +520,18 @@ def check_job_memory(plan, *, merged=True):
 
 
 def input_stamp(path):
-    """What tells a changed input: size and modification time (ns) of the file, or of every
-    file in a folder input (a Zarr store: the file count, total size and latest time)."""
+    """What tells a changed input: size and modification time (ns) of the file (and of a
+    detached NRRD header's data file), or of every file in a folder input (a Zarr store: the
+    file count, total size and latest time)."""
     p = Path(path)
     if not p.is_dir():
         st = p.stat()
-        return [int(st.st_size), int(st.st_mtime_ns)]
+        stamp = [int(st.st_size), int(st.st_mtime_ns)]
+        data = _detached_data_file(p)
+        if data is not None:  # a .nhdr's samples are in another file: a change there is a change too
+            st = data.stat()
+            stamp += [int(st.st_size), int(st.st_mtime_ns)]
+        return stamp
     count, size, latest = 0, 0, 0
     for root, _, files in os.walk(p):
         for f in files:
@@ -534,17 +540,34 @@ def input_stamp(path):
     return [count, size, latest]
 
 
-#: Bytes of float64 samples :func:`check_exact_values` reads at a time.
+def _detached_data_file(p):
+    """The data file a NRRD header names (``data file``, relative to its folder), or None."""
+    if p.suffix.lower() != ".nhdr":
+        return None
+    import nrrd
+
+    try:
+        with open(p, "rb") as fh:
+            header = nrrd.read_header(fh)
+        name = header.get("data file", header.get("datafile"))
+    except Exception:  # an unreadable header is refused, naming it, when the volume is opened
+        return None
+    data = None if name is None else p.parent / str(name)
+    return data if data is not None and data.is_file() else None
+
+
+#: Bytes of float64 samples :func:`check_values` reads at a time.
 CHECK_READ_BYTES = 64 * 2**20
 
 
-def check_exact_values(vol):
-    """Read a volume of 64-bit integers through once, slab by slab, before any job: one that
-    float64 cannot hold exactly (beyond 2^53) is refused naming it and its grid index
-    (:meth:`trivsel.io.regions.Volume.read` checks each slab).  Other types (float64 holds every
-    int32 and float32 exactly) are checked by the jobs as they read their regions."""
+def check_values(vol):
+    """Read a volume through once, slab by slab, before any job: a non-finite value, or an
+    integer that float64 cannot hold exactly (beyond 2^53), is refused naming it and its grid
+    index (:meth:`trivsel.io.regions.Volume.read` checks each slab), so that no job fails on it
+    after others have run.  Integers of up to 32 bits and booleans are exact and finite: they
+    are not read."""
     dtype = np.dtype(vol.dtype)
-    if dtype.kind not in "iu" or dtype.itemsize < 8:
+    if dtype.kind == "b" or (dtype.kind in "iu" and dtype.itemsize < 8):
         return
     from ..resources import check_memory
 
@@ -559,14 +582,22 @@ def check_exact_values(vol):
         vol.read(tuple(region))
 
 
+def check_new_input(out, full):
+    """Before the first run in ``out`` (no ``blocks.json`` yet), read the input's values
+    through once (:func:`check_values`).  A rerun's input has the stamp of the run that
+    checked it (:func:`check_run_folder`), so it is not read again."""
+    if full.get("input") is not None and not (Path(out) / CONFIG).exists():
+        check_values(_open(full))
+
+
 def make_config(config):
     """Check a blocked run's configuration and complete it (no file is written).
 
     ``config``: the source (``input`` path, or ``function`` and ``n``; ``array``,
     ``volume``), ``block`` (grid intervals per block), ``tol_inf``, ``method``, ``merged``.
     The volume is opened (its header only) for its shape and geometry; the plan's job count
-    is checked (:func:`check_plan_size`).  Returns the full configuration, with the plan
-    and the input's :func:`input_stamp`.
+    is checked (:func:`check_plan_size`); its values are not read (:func:`check_new_input`).
+    Returns the full configuration, with the plan and the input's :func:`input_stamp`.
     """
     from ..methods import METHODS, get_method
 
@@ -586,7 +617,6 @@ def make_config(config):
     plan_blocks((3, 3, 3), config.get("block"))  # the block size's own checks, on a grid of one block
     check_plan_size(vol.shape, config.get("block"))
     plan = plan_blocks(vol.shape, config.get("block"))
-    check_exact_values(vol)
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())
     return {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
@@ -650,6 +680,7 @@ def write_config(out, config):
     full = make_config(config)
     out = Path(out)
     check_run_folder(out, full)
+    check_new_input(out, full)
     out.mkdir(parents=True, exist_ok=True)
     _atomic_write_text(out / CONFIG, json.dumps(full, indent=1))
     return full
@@ -1079,6 +1110,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     if _runs_locally(snakemake_args):
         check_job_memory(Plan.from_dict(full["plan"]), merged=full["merged"])
     check_run_folder(out, full)
+    check_new_input(out, full)
     # batch small jobs on a cluster; name the SLURM jobs after the folder, so that they can be
     # found and cancelled (Snakemake's arguments given after `--` come later and win)
     batch = ["--group-components", *(f"{k}={v}" for k, v in group_components(Plan.from_dict(full["plan"])).items())]
