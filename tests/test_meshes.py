@@ -191,6 +191,36 @@ def test_mesh_file_through_the_cli(tmp_path):
     check_mesh_keeps_domain(p, t, tets)
 
 
+def test_voxel_cells_are_split_and_said_so(tmp_path):
+    """A .vtu of voxel cells (and a boundary triangle) is a mesh: each voxel is Kuhn-split into
+    6 tetrahedra whose union is the voxels' union, and result.json says which cells were split
+    and which were not used."""
+    import pyvista as pv
+
+    from trivsel.io import load
+
+    corners = np.indices((2, 2, 2)).reshape(3, -1).T[:, ::-1]  # corner i + 2 j + 4 k at (i, j, k)
+    pts = np.indices((4, 3, 3)).reshape(3, -1).T.astype(float)
+    idx = {tuple(q): n for n, q in enumerate(pts.astype(int).tolist())}
+    cells = [[idx[tuple(c)] for c in (np.array(c0) + corners).tolist()]
+             for c0 in np.ndindex(3, 2, 2) if c0 != (1, 1, 1)]  # 11 voxels around a notch
+    g = pv.UnstructuredGrid({pv.CellType.VOXEL: np.array(cells), pv.CellType.TRIANGLE: np.array([[0, 1, 3]])}, pts)
+    g.point_data["value"] = smooth(pts)
+    g.save(tmp_path / "vox.vtu")
+    d = load(tmp_path / "vox.vtu")
+    assert len(d.tets) == 6 * len(cells)
+    assert np.isclose(mesh_volume(pts, d.tets), len(cells))  # the voxels' union
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "trivsel", "reduce", str(tmp_path / "vox.vtu"), "--fractions", "0.5",
+                        "--out", str(out)], capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    notes = json.loads((out / "result.json").read_text())["notes"]
+    assert any(f"the input's {len(cells)} voxel cells were each split into 6 tetrahedra" in n for n in notes)
+    assert any("the input's 1 cells of lower dimension" in n for n in notes)
+    m = pv.read(out / "mesh_0.5.vtu")
+    check_mesh_keeps_domain(pts, d.tets, m.point_data["original_index"][m.cells_dict[pv.CellType.TETRA]])
+
+
 def test_mesh_in_a_notebook_is_a_mesh():
     import pyvista as pv
 

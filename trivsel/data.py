@@ -60,6 +60,9 @@ class PointData:
     cell_arrays : tuple of str
         The names of the input's cell arrays: the reduced mesh's cells are new, so they are
         not carried (noted in the result).
+    read_notes : tuple of str
+        What the reader did that is not one-to-one with the file (cells split into
+        tetrahedra, cells not used), repeated in the result's notes.
     """
 
     points: np.ndarray
@@ -74,6 +77,7 @@ class PointData:
     tets: np.ndarray | None = None
     point_arrays: dict | None = None
     cell_arrays: tuple = ()
+    read_notes: tuple = ()
 
     def file_ids(self, indices):
         """The input file's point ids of the given (trivsel) point indices."""

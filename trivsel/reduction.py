@@ -124,6 +124,7 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     problem = Problem(data=data, options=opts, stop=scaling.stop_in(stop), boundary=boundary, threads=threads,
                       check=check, progress=scaling.progress_out(progress), t_start=t_start)
     out = method.run(problem)
+    out.notes[:0] = data_in.read_notes
     if data_in.cell_arrays:
         out.notes.append(f"the input's cell data ({', '.join(data_in.cell_arrays)}) is not in the output: the "
                          "reduced mesh has other cells")

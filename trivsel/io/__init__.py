@@ -5,7 +5,9 @@ Input formats (:func:`load`):
 * ``.vti`` (VTK image data) and legacy ``.vtk`` files holding structured points:
   a regular grid; it takes the exact integer path and keeps its origin and spacing;
 * ``.vtu`` and legacy ``.vtk`` unstructured grids with tetrahedra: a tetrahedral mesh, whose
-  cells are its domain (possibly non-convex); other solid cell types are refused;
+  cells are its domain (possibly non-convex); voxels are split into 6 tetrahedra each and
+  cells of lower dimension are not used (both said in the result's notes); other solid cell
+  types are refused;
 * ``.vtu``, ``.vtp``, ``.vts``, ``.vtr`` and other legacy ``.vtk`` datasets without
   tetrahedra: scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
@@ -314,7 +316,7 @@ def _vtk_data(ds, arrays, col, p, name) -> PointData:
         data.file_index = i + nx * (j + ny * k)  # VTK's point id of each grid point
         return data
     data = scattered(np.asarray(_vtk_points(ds), float), vals, name=name)
-    data.tets = _vtk_tetrahedra(ds, p)
+    data.tets, data.read_notes = _vtk_tetrahedra(ds, p)
     data.point_arrays = {k: v for k, v in arrays.items() if k != col and v.ndim <= 2 and len(v) == data.n_points}
     cd = ds.GetCellData()
     data.cell_arrays = tuple(cd.GetArrayName(i) or f"array {i}" for i in range(cd.GetNumberOfArrays()))
@@ -333,13 +335,14 @@ def _vtk_tetrahedra(ds, p):
     (all along the same diagonal, so that neighbouring voxels split their shared faces
     alike); None when it has neither (its points are then scattered data).  Cells of lower
     dimension (boundary triangles, edges, vertices) do not change the domain and are not
-    used; another solid cell type is refused with one line."""
+    used; another solid cell type is refused with one line.  Returns the tetrahedra and the
+    notes saying which cells were split or not used."""
     import warnings
 
     from vtkmodules.util.numpy_support import vtk_to_numpy
 
     if not ds.IsA("vtkUnstructuredGrid") or ds.GetNumberOfCells() == 0:
-        return None
+        return None, ()
     with warnings.catch_warnings():  # VTK 9.6 renames it GetCellTypes; older VTK's GetCellTypes differs
         warnings.simplefilter("ignore", DeprecationWarning)
         types = vtk_to_numpy(ds.GetCellTypesArray()).astype(np.int64)
@@ -350,7 +353,14 @@ def _vtk_tetrahedra(ds, p):
                          "reduces meshes of tetrahedra only; split them into tetrahedra first")
     tet, vox = np.flatnonzero(types == 10), np.flatnonzero(types == 11)
     if len(tet) == 0 and len(vox) == 0:
-        return None
+        return None, ()
+    notes = []
+    if len(vox):
+        notes.append(f"the input's {len(vox)} voxel cells were each split into 6 tetrahedra (the Kuhn split "
+                     "along the diagonal from the voxel's first corner to its last) before the reduction")
+    if len(types) > len(tet) + len(vox):
+        notes.append(f"the input's {len(types) - len(tet) - len(vox)} cells of lower dimension (triangles, "
+                     "lines, vertices) do not bound the domain and were not used")
     cells = ds.GetCells()
     offsets = vtk_to_numpy(cells.GetOffsetsArray()).astype(np.int64)
     conn = vtk_to_numpy(cells.GetConnectivityArray()).astype(np.int64)
@@ -358,7 +368,7 @@ def _vtk_tetrahedra(ds, p):
     # sets one axis bit after another (the orientation is fixed when the mesh is checked)
     paths = [[0, 1 << a, (1 << a) | (1 << b), 7] for a, b, _ in itertools.permutations(range(3))]
     return np.concatenate([conn[offsets[tet][:, None] + np.arange(4)],
-                           conn[offsets[vox][:, None] + np.arange(8)][:, paths].reshape(-1, 4)])
+                           conn[offsets[vox][:, None] + np.arange(8)][:, paths].reshape(-1, 4)]), tuple(notes)
 
 
 def _check_vtk_header_geometry(p):
