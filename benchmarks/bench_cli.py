@@ -58,6 +58,11 @@ else:  # the Kuhn split: six tets around each cube's main diagonal
     cells = np.hstack([np.full((len(tets), 1), 4), tets]).ravel()
     grid = pv.UnstructuredGrid(cells, np.full(len(tets), pv.CellType.TETRA, np.uint8), image.points)
     grid.point_data["f"] = image.point_data["f"]
+'''
+
+#: The filter as a VTK user runs it, after ``grid`` (scalars ``f``), ``stop``, ``n_keep``,
+#: ``fraction`` and ``dst`` are set; it writes the result and prints its vertex count.
+VTK_FILTER = r'''
 grid.point_data.active_scalars_name = "f"
 flt = vtkUnstructuredGridQuadricDecimation()
 flt.SetInputData(grid)
@@ -72,6 +77,7 @@ out = pv.wrap(flt.GetOutput())
 out.save(dst)
 print(out.n_points)
 '''
+VTK_SCRIPT += VTK_FILTER
 
 
 def write_vti(d, path):

@@ -20,20 +20,29 @@ its boundary, not dropped.  trivsel ``decimate`` then runs at VTK's median verte
 data values and with fitted values.
 
 Printed: trivsel's E_RMS (fitted values) over VTK's and over VTK's with refitted values; E_inf
-(data values) over VTK's; trivsel's seconds (``reduce``'s total: its Delaunay, the collapses and
-the fit) over VTK's (its Delaunay, ``pv.PolyData(P).delaunay_3d()``, for scattered input, plus
-the filter's ``Update()``), each median of its runs in this process; and whether trivsel kept the
-domain: its mesh's volume against the input mesh's (relative difference) and its validity
-(:func:`trivsel.decimation.tetmesh.check_mesh_keeps_domain`).
+(data values) over VTK's; whole processes against whole processes (``process_s_over_vtk``): the
+input written to a file (``.npz`` of points and values, or the ``.vtu``), then ``trivsel reduce
+FILE --count K --method decimate --values data fit`` against a VTK script that reads the same
+file, builds the Delaunay tetrahedra of scattered points (``pv.PolyData(P).delaunay_3d()``), runs
+the filter with the weight screened above (C ``rand()`` unseeded, as a user runs it), stopped at
+the same count, and writes a ``.vtu`` (medians of ``--repeats`` alternating runs; both peak memories in GB); trivsel's
+in-process ``reduce`` over VTK's in-process Delaunay and ``Update()`` (``inproc_s_over_vtk``); and
+whether trivsel kept the domain: its mesh's volume against the input mesh's (relative
+difference) and its validity (:func:`trivsel.decimation.tetmesh.check_mesh_keeps_domain`).
 
-    python benchmarks/bench_scattered.py                          # 20k points, 3 volumes (about 15 min)
-    python benchmarks/bench_scattered.py --points 100000 --volumes icbm152 --fractions 0.05
+``--trivsel-only`` skips VTK and times one ``trivsel reduce --fractions F`` process per input
+(seconds and peak memory), for sizes where VTK's screening would take hours.
+
+    python benchmarks/bench_scattered.py                          # 20k points, 3 volumes (about 20 min)
+    python benchmarks/bench_scattered.py --points 100000 --fractions 0.05 --no-mask
+    python benchmarks/bench_scattered.py --points 1000000 --fractions 0.05 --trivsel-only --no-vtu --no-mask
 """
 
 from __future__ import annotations
 
 import argparse
 import statistics
+import subprocess
 import sys
 import tempfile
 import time
@@ -43,6 +52,9 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
+sys.path.insert(0, str(ROOT / "benchmarks"))
+
+from bench_cli import VTK_FILTER  # noqa: E402  (VTK's filter as bench_cli.py runs it)
 
 
 def trilinear(grid, points):
@@ -96,6 +108,83 @@ def brain_mask_mesh(grid, level=0.3):
     return d
 
 
+VTK_SCRIPT = r'''
+import sys
+import numpy as np
+import pyvista as pv
+from vtkmodules.vtkFiltersCore import vtkUnstructuredGridQuadricDecimation
+
+src, dst, n_keep, scale = sys.argv[1], sys.argv[2], int(sys.argv[3]), float(sys.argv[4])
+stop, fraction = "edges", None
+if src.endswith(".npz"):  # scattered points: VTK's own Delaunay tetrahedra first
+    z = np.load(src)
+    grid = pv.PolyData(z["points"]).delaunay_3d()
+    grid.point_data["f"] = z["values"] * scale
+else:
+    grid = pv.read(src)
+    grid.point_data["f"] = grid.point_data["value"] * scale
+''' + VTK_FILTER
+
+
+#: Runs a command in a forked grandchild and writes its peak resident memory (kB) to a file.
+#: ``ru_maxrss`` of a direct child would start at this benchmark's own size: a process keeps
+#: the high-water mark of the memory it was forked with across ``exec``.
+PEAK_LAUNCHER = """import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+_, status, usage = os.wait4(pid, 0)
+open(sys.argv[1], "w").write(str(usage.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
+def run_process(cmd):
+    """Seconds and peak resident memory (GB) of one whole process."""
+    with tempfile.TemporaryDirectory() as tmp:
+        peak = Path(tmp) / "peak"
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-c", PEAK_LAUNCHER, str(peak), *map(str, cmd)],
+                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
+        seconds = time.perf_counter() - t0
+        if r.returncode:
+            raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
+        return seconds, int(peak.read_text()) / 2**20
+
+
+def write_input(data, path):
+    """The input as a user has it: scattered points as an .npz, a mesh as a .vtu of its tetrahedra."""
+    if data.tets is None:
+        np.savez(path.with_suffix(".npz"), points=data.points, values=data.values)
+        return path.with_suffix(".npz")
+    import pyvista as pv
+
+    g = pv.UnstructuredGrid({pv.CellType.TETRA: data.tets}, data.points)
+    g.point_data["value"] = data.values
+    g.save(path.with_suffix(".vtu"))
+    return path.with_suffix(".vtu")
+
+
+def trivsel_command(src, out, stop):
+    return [sys.executable, "-m", "trivsel", "reduce", str(src), *(["--array", "value"] if src.suffix == ".vtu" else []),
+            *stop, "--method", "decimate", "--values", "data", "fit", "--progress", "never", "--out", str(out)]
+
+
+def processes(data, K, vtk, repeats, folder):
+    """Whole trivsel and VTK processes on the same file, alternating: median seconds, peak GB."""
+    folder = Path(folder)
+    src = write_input(data, folder / "input")
+    script = folder / "vtk_decimate.py"
+    script.write_text(VTK_SCRIPT)
+    progs = {"trivsel": trivsel_command(src, folder / "out", ["--count", str(K)]),
+             "vtk": [sys.executable, str(script), str(src), str(folder / "vtk.vtu"), str(K), repr(vtk["abs_scale"])]}
+    runs = {k: [] for k in progs}
+    for _ in range(repeats):
+        for name, cmd in progs.items():
+            runs[name].append(run_process(cmd))
+    return {k: (statistics.median(r[0] for r in v), max(r[1] for r in v)) for k, v in runs.items()}
+
+
 def vtk_delaunay_seconds(points, repeats):
     import pyvista as pv
 
@@ -107,7 +196,7 @@ def vtk_delaunay_seconds(points, repeats):
     return statistics.median(out)
 
 
-def measure(label, data, fraction, repeats, say):
+def measure(label, data, fraction, repeats, say, folder):
     import trivsel
     from trivsel.decimation.tetmesh import check_mesh_keeps_domain, mesh_volume, start_mesh
     from trivsel.study.realdata import run_vtk
@@ -124,11 +213,15 @@ def measure(label, data, fraction, repeats, say):
     before, _ = start_mesh(data)
     check_mesh_keeps_domain(data.points, before, s.tets)
     v0 = mesh_volume(data.points, before)
+    proc = processes(data, K, vtk, repeats, folder)
     return {"input": label, "fraction": fraction, "N": data.n_points, "K": K,
+            "process_s_over_vtk": proc["trivsel"][0] / proc["vtk"][0],
+            "trivsel_process_s": proc["trivsel"][0], "vtk_process_s": proc["vtk"][0],
+            "trivsel_GB": proc["trivsel"][1], "vtk_GB": proc["vtk"][1],
             "fit_rms_over_vtk": s.fit["errors"]["E_rms"] / vtk["E_rms"],
             "fit_rms_over_vtk_refit": s.fit["errors"]["E_rms"] / vtk["refit_E_rms"],
             "inf_over_vtk": s.errors["E_inf"] / vtk["E_inf"],
-            "seconds_over_vtk": statistics.median(runs) / vtk_seconds,
+            "inproc_s_over_vtk": statistics.median(runs) / vtk_seconds,
             "volume_change": abs(mesh_volume(data.points, s.tets) - v0) / v0,
             "vtk_outside": int(vtk["n_outside"]),
             "trivsel_seconds": statistics.median(runs), "vtk_seconds": vtk_seconds,
@@ -146,11 +239,16 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-mask", action="store_true", help="skip the non-convex brain-mask mesh")
     ap.add_argument("--no-vtu", action="store_true", help="skip the .vtu meshes")
+    ap.add_argument("--trivsel-only", action="store_true",
+                    help="time one trivsel process per input and fraction (seconds, peak GB), no VTK")
     a = ap.parse_args(argv)
 
     def say(msg):
         print(msg, file=sys.stderr, flush=True)
 
+    # every kernel a timed run loads, so that no timed run compiles
+    subprocess.run([sys.executable, "-m", "trivsel", "compile", "--method", "decimate"], check=True,
+                   capture_output=True)
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         for name in a.volumes:
@@ -166,9 +264,16 @@ def main(argv=None):
             for label, d in inputs:
                 for fr in a.fractions:
                     say(f"{label}, {fr:g} ...")
-                    rows.append(measure(label, d, fr, a.repeats, say))
-    cols = ["input", "fraction", "N", "K", "fit_rms_over_vtk", "fit_rms_over_vtk_refit", "inf_over_vtk",
-            "seconds_over_vtk", "volume_change", "vtk_outside"]
+                    if a.trivsel_only:
+                        src = write_input(d, Path(tmp) / "input")
+                        sec, gb = run_process(trivsel_command(src, Path(tmp) / "out", ["--fractions", str(fr)]))
+                        rows.append({"input": label, "fraction": fr, "N": d.n_points, "trivsel_process_s": sec,
+                                     "trivsel_GB": gb})
+                    else:
+                        rows.append(measure(label, d, fr, a.repeats, say, tmp))
+    cols = (["input", "fraction", "N", "trivsel_process_s", "trivsel_GB"] if a.trivsel_only else
+            ["input", "fraction", "N", "K", "fit_rms_over_vtk", "fit_rms_over_vtk_refit", "inf_over_vtk",
+             "process_s_over_vtk", "trivsel_GB", "vtk_GB", "inproc_s_over_vtk", "volume_change", "vtk_outside"])
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
     for r in rows:

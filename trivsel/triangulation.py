@@ -117,14 +117,15 @@ def delaunay_tetrahedra(points) -> np.ndarray:
 
 def _exact_signs(p, tets):
     """Exact orientation sign of each tetrahedron (filtered float, exact fallback)."""
-    from .predicates import orient3d_float_sign
-
     vol = orient3d_float(p, tets)
     sign = np.sign(vol).astype(np.int64)
     # only near-zero volumes need the exact test: |error| of the float determinant
     # is far below 1e-10 of the product of the edge lengths
     ext = np.ptp(p, axis=0).max() if len(p) else 1.0
-    for t in np.flatnonzero(np.abs(vol) <= 1e-10 * ext ** 3):
+    near = np.flatnonzero(np.abs(vol) <= 1e-10 * ext ** 3)
+    if len(near):  # numba's import and dispatch only when a sign needs them
+        from .predicates import orient3d_float_sign
+    for t in near:
         a, b, c, d = (p[i] for i in tets[t])
         sign[t] = orient3d_float_sign(*a, *b, *c, *d)
     return sign

@@ -458,7 +458,7 @@ def _far(dec, target, exact_within, tol_rms, tol_inf, N):
 
 def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates="all", key="sse",
                        exact_within=EXACT_WITHIN, values=("data",), interior=None, check=None, progress=None,
-                       t_start=None):
+                       t_start=None, start=None):
     """The whole run of ``method="decimate"`` for :func:`trivsel.reduce`.
 
     Collapses from the full grid down through ``targets`` (counts, visited in
@@ -471,7 +471,8 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     the points in the order in which a selection grows (the final vertices in index
     order, then the removed points from last to first: ``selected[:k]`` is the
     selection of a snapshot with ``k`` points), the counters, and the seconds spent on
-    the snapshots' errors and fits.
+    the snapshots' errors and fits.  ``start``: the start mesh of non-grid data, ``(tets,
+    located)`` of :func:`trivsel.decimation.tetmesh.start_mesh`, when the caller has it.
     """
     import math
     import time
@@ -488,7 +489,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     else:
         from .tetmesh import start_mesh
 
-        tets, located = start_mesh(data)
+        tets, located = start_mesh(data) if start is None else start
         dec = Decimation.on_mesh(data.points, tets, data.values, located=located, tol_inf=tol_inf, key=key)
         if candidates == "interior":
             dec.S.lock[~interior] |= LOCK_ALL

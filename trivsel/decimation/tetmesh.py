@@ -110,6 +110,32 @@ def start_mesh(data):
     return tets, located
 
 
+def start_interior_mask(points, tets, located):
+    """Points not on the boundary of the start mesh ``tets`` (:func:`start_mesh`): the mesh's
+    vertices on none of its boundary triangles, and the points no tetrahedron uses
+    (``located[i] >= 0``) that lie on no boundary face of their tetrahedron (exact signs).
+    For scattered points this is the convex hull's surface without computing the hull again."""
+    from ..triangulation import boundary_triangles
+
+    p = np.asarray(points, float)
+    bnd = boundary_triangles(tets)
+    inner = np.ones(len(p), bool)
+    inner[np.unique(bnd)] = False
+    loose = np.flatnonzero(located >= 0)
+    if len(loose):
+        from ..predicates import orient3d_float_sign
+
+        faces = {tuple(sorted(f)): f for f in bnd.tolist()}
+        for q in loose:
+            t = tets[located[q]]
+            for i in range(4):
+                f = faces.get(tuple(sorted(int(t[j]) for j in range(4) if j != i)))
+                if f is not None and orient3d_float_sign(*p[f[0]], *p[f[1]], *p[f[2]], *p[q]) == 0:
+                    inner[q] = False
+                    break
+    return inner
+
+
 def check_mesh_keeps_domain(points, before, after):
     """Check that ``after`` is a valid tetrahedral mesh of the domain of ``before`` (both over
     ``points``): every tetrahedron positively oriented (exact), no face in more than two,

@@ -75,7 +75,14 @@ def run(problem):
     if problem.boundary is not None:
         raise InputError("method 'decimate' cannot take a prescribed boundary; use 'greedy' or 'paper'")
     N = data.n_points
-    interior = data.interior_mask()
+    start = None
+    if data.is_grid:
+        interior = data.interior_mask()
+    else:  # the start mesh's boundary is the domain's (for scattered points, their hull)
+        from ..decimation.tetmesh import start_interior_mask, start_mesh
+
+        start = start_mesh(data)
+        interior = start_interior_mask(data.points, *start)
     if opts.candidates == "interior":
         n_fixed = int(np.sum(~interior))
     else:  # the box's corners; off the grid, at least one tetrahedron
@@ -93,7 +100,7 @@ def run(problem):
         key="max" if opts.criterion == "max" else "sse",
         exact_within=EXACT_WITHIN if opts.lazy_queue else float("inf"),
         values=opts.values, interior=interior, check=problem.check, progress=problem.progress,
-        t_start=problem.t_start)
+        t_start=problem.t_start, start=start)
     requested_fractions(snaps, stop["fractions"], N)
     notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
     t_total = time.perf_counter() - problem.t_start
