@@ -265,14 +265,15 @@ def lattice_coordinates(points):
     return ijk
 
 
-def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False):
+def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False, boundary=None):
     """The :class:`State` of a decimation of a tetrahedral mesh: coordinates ``points``,
     positively oriented ``tets`` (every tet of nonzero volume, conforming), point values;
     ``located`` the tet holding each point that is no tet's vertex (-1 for the vertices).
     The mesh's boundary vertices get ``LOCK_MESH``.  Points on a lattice (a mesh made
     from a grid, say) take the exact integer predicates of grids on their lattice
     coordinates (an affine image: the same signs and barycentric weights); other points
-    the robust predicates on their float coordinates (``ctr[C_FLOAT]``)."""
+    the robust predicates on their float coordinates (``ctr[C_FLOAT]``).  ``boundary``: the
+    mesh's boundary triangles, when the caller has them."""
     from ..triangulation import boundary_triangles
 
     ijk = lattice_coordinates(points)
@@ -286,7 +287,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False)
     deg = np.bincount(Tm.ravel(), minlength=N)
     cap, vstart = _segments(deg)
     lk = np.zeros(N, np.int8)
-    lk[np.unique(boundary_triangles(Tm))] = LOCK_MESH
+    lk[np.unique(boundary_triangles(Tm) if boundary is None else boundary)] = LOCK_MESH
     isv = deg > 0
     phead = np.full(M, -1, ix)
     pnext = np.full(N, -1, ix)
@@ -343,11 +344,12 @@ class Decimation:
         self._k.init(self.S, self.tol_inf)
 
     @classmethod
-    def on_mesh(cls, points, tets, values, *, located=None, tol_inf=None, key="sse", lazy=False):
+    def on_mesh(cls, points, tets, values, *, located=None, tol_inf=None, key="sse", lazy=False, boundary=None):
         """A decimation of a tetrahedral mesh (:func:`new_mesh_state`): its boundary is kept
         exactly, its vertices removed by the same collapses as on a grid."""
         return cls(None, None, None, tol_inf=tol_inf, key=key, lazy=lazy,
-                   state=new_mesh_state(points, tets, values, located=located, key=key, lazy=lazy))
+                   state=new_mesh_state(points, tets, values, located=located, key=key, lazy=lazy,
+                                        boundary=boundary))
 
     @property
     def n_vertices(self):
@@ -472,7 +474,8 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     order, then the removed points from last to first: ``selected[:k]`` is the
     selection of a snapshot with ``k`` points), the counters, and the seconds spent on
     the snapshots' errors and fits.  ``start``: the start mesh of non-grid data, ``(tets,
-    located)`` of :func:`trivsel.decimation.tetmesh.start_mesh`, when the caller has it.
+    located)`` of :func:`trivsel.decimation.tetmesh.start_mesh` and its boundary triangles,
+    when the caller has them.
     """
     import math
     import time
@@ -489,8 +492,9 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     else:
         from .tetmesh import start_mesh
 
-        tets, located = start_mesh(data) if start is None else start
-        dec = Decimation.on_mesh(data.points, tets, data.values, located=located, tol_inf=tol_inf, key=key)
+        tets, located, boundary = (*start_mesh(data), None) if start is None else start
+        dec = Decimation.on_mesh(data.points, tets, data.values, located=located, tol_inf=tol_inf, key=key,
+                                 boundary=boundary)
         if candidates == "interior":
             dec.S.lock[~interior] |= LOCK_ALL
     sse_max = INF if tol_rms is None else float(tol_rms) ** 2 * N * (1.0 + 1e-12)

@@ -110,15 +110,16 @@ def start_mesh(data):
     return tets, located
 
 
-def start_interior_mask(points, tets, located):
+def start_interior_mask(points, tets, located, boundary=None):
     """Points not on the boundary of the start mesh ``tets`` (:func:`start_mesh`): the mesh's
     vertices on none of its boundary triangles, and the points no tetrahedron uses
     (``located[i] >= 0``) that lie on no boundary face of their tetrahedron (exact signs).
-    For scattered points this is the convex hull's surface without computing the hull again."""
+    For scattered points this is the convex hull's surface without computing the hull again.
+    ``boundary``: the boundary triangles of ``tets``, when the caller has them."""
     from ..triangulation import boundary_triangles
 
     p = np.asarray(points, float)
-    bnd = boundary_triangles(tets)
+    bnd = boundary_triangles(tets) if boundary is None else boundary
     inner = np.ones(len(p), bool)
     inner[np.unique(bnd)] = False
     loose = np.flatnonzero(located >= 0)
