@@ -16,8 +16,10 @@ trivsel/aot.py, and numba's cache for ``--numba-too``).
     python benchmarks/bench_cli.py --n 32 64 128 --repeats 3
     python benchmarks/bench_cli.py --volumes icbm152 statmap aniso --fractions 0.1 0.05 --methods decimate
     python benchmarks/bench_cli.py --numba-too           # also each method with TRIVSEL_AOT=0
+    python benchmarks/bench_cli.py --crops 65 129 --fractions 0.05 --methods decimate --values data fit
 
-Prints one table: median seconds per program and the ratio trivsel / VTK's fastest.
+Prints one table: median seconds per program and the ratio trivsel / VTK's fastest, and each
+program's peak resident memory (its largest run) against VTK's least.
 """
 
 from __future__ import annotations
@@ -90,13 +92,41 @@ def write_vti(d, path):
     return d.n_points
 
 
+#: Runs a command in a forked grandchild and writes its peak resident memory (kB) to a file.
+#: ``ru_maxrss`` of a direct child would start at the benchmark's own size: a process keeps
+#: the high-water mark of the memory it was forked with across ``exec``.
+PEAK_LAUNCHER = """import os, sys
+pid = os.fork()
+if pid == 0:
+    os.execvp(sys.argv[2], sys.argv[2:])
+_, status, usage = os.wait4(pid, 0)
+open(sys.argv[1], "w").write(str(usage.ru_maxrss))
+sys.exit(os.waitstatus_to_exitcode(status))
+"""
+
+
 def run(cmd, env=None):
-    t0 = time.perf_counter()
-    r = subprocess.run(cmd, capture_output=True, text=True, env=env)
-    seconds = time.perf_counter() - t0
-    if r.returncode:
-        raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
-    return seconds, r.stdout
+    """Seconds, stdout and peak resident memory (GB) of one whole process."""
+    with tempfile.TemporaryDirectory() as tmp:
+        peak = Path(tmp) / "peak"
+        t0 = time.perf_counter()
+        r = subprocess.run([sys.executable, "-c", PEAK_LAUNCHER, str(peak), *map(str, cmd)], capture_output=True,
+                           text=True, env=env)
+        seconds = time.perf_counter() - t0
+        if r.returncode:
+            raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
+        return seconds, r.stdout, int(peak.read_text()) / 2**20
+
+
+def t1_crop(size):
+    """The central ``size``^3 crop of the ICBM152 2009a T1 template (1 mm, nilearn's wheel)."""
+    from trivsel.study.realdata import REAL, central_crop, load_nifti, package_file
+
+    package, rel, _ = REAL["icbm152"]
+    path = package_file(package, rel)
+    if path is None:
+        raise SystemExit(f"the ICBM152 T1 needs {package}: pip install -e '.[realdata]'")
+    return central_crop(load_nifti(path, "icbm152"), size)
 
 
 def main(argv=None):
@@ -104,6 +134,11 @@ def main(argv=None):
     ap.add_argument("--n", type=int, nargs="+", help="grid intervals per axis of function 4 (default: 32 64, "
                     "unless --volumes)")
     ap.add_argument("--volumes", nargs="+", default=[], help="volumes of trivsel.study.realdata")
+    ap.add_argument("--crops", type=int, nargs="+", default=[],
+                    help="edges of central crops of the ICBM152 T1 (e.g. 65 129)")
+    ap.add_argument("--values", nargs="+", default=["data"], help="trivsel's --values (e.g. data fit)")
+    ap.add_argument("--vtk-stops", nargs="+", default=["target", "edges"], choices=["target", "edges"],
+                    help="VTK's ways to stop that are timed (both splits each)")
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.1])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--methods", nargs="+", default=["paper", "greedy"])
@@ -113,7 +148,9 @@ def main(argv=None):
     import trivsel
     from trivsel.selection import count_for_fraction
 
-    cases = [(f"f4 {n + 1}^3", lambda n=n: trivsel.sample_grid(4, n)) for n in (a.n or ([] if a.volumes else [32, 64]))]
+    cases = [(f"f4 {n + 1}^3", lambda n=n: trivsel.sample_grid(4, n))
+             for n in (a.n or ([] if a.volumes or a.crops else [32, 64]))]
+    cases += [(f"T1 {c}^3", lambda c=c: t1_crop(c)) for c in a.crops]
     if a.volumes:
         from trivsel.study.realdata import load_volume
 
@@ -139,27 +176,38 @@ def main(argv=None):
             for fraction in a.fractions:
                 keep = count_for_fraction(fraction, N)
                 progs = {m: [py, "-m", "trivsel", "reduce", str(vti), "--array", "f", "--fractions", str(fraction),
-                             "--method", m, "--progress", "never", "--out", str(tmp / f"out_{m}")] for m in a.methods}
+                             "--method", m, "--values", *a.values, "--progress", "never", "--out", str(tmp / f"out_{m}")]
+                         for m in a.methods}
                 if a.numba_too:
                     progs.update({f"{m} (numba)": progs[m] for m in a.methods})
                 for split in ("pv5", "kuhn6"):
-                    for stop in ("target", "edges"):
+                    for stop in a.vtk_stops:
                         progs[f"vtk-{split}-{stop}"] = [py, str(script), str(vti), str(tmp / "vtk.vtu"), split, stop,
                                                         str(keep), str(fraction)]
                 times = {k: [] for k in progs}
+                peaks = {k: [] for k in progs}
                 for _ in range(a.repeats):
                     for name, cmd in progs.items():
-                        times[name].append(run(cmd, jit_env if name.endswith("(numba)") else None)[0])
+                        seconds, _, gb = run(cmd, jit_env if name.endswith("(numba)") else None)
+                        times[name].append(seconds)
+                        peaks[name].append(gb)
                 med = {k: statistics.median(v) for k, v in times.items()}
+                peak = {k: max(v) for k, v in peaks.items()}
                 vtk_best = min((k for k in med if k.startswith("vtk-")), key=med.get)
+                vtk_least = min(peak[k] for k in peak if k.startswith("vtk-"))
                 for m in [k for k in progs if not k.startswith("vtk-")]:
-                    rows.append((label, N, fraction, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best]))
-                print(f"{label} to {fraction:g}: " + ", ".join(f"{k} {v:.2f} s" for k, v in med.items()), flush=True)
-    print(f"\nwhole processes, medians of {a.repeats} alternating runs")
-    print("| input | points | kept | method | trivsel s | VTK's fastest | VTK s | ratio |")
-    print("|---|---|---|---|---|---|---|---|")
-    for label, N, fraction, m, t, best, tv, ratio in rows:
-        print(f"| {label} | {N} | {fraction:.0%} | {m} | {t:.2f} | {best} | {tv:.2f} | **{ratio:.2f}** |")
+                    rows.append((label, N, fraction, m, med[m], vtk_best, med[vtk_best], med[m] / med[vtk_best],
+                                 peak[m], vtk_least))
+                print(f"{label} to {fraction:g}: " + ", ".join(f"{k} {v:.2f} s {peak[k]:.2f} GB" for k, v in med.items()),
+                      flush=True)
+    print(f"\nwhole processes, medians of {a.repeats} alternating runs; peak memory: the largest of a "
+          "program's runs, VTK's the least of its variants")
+    print("| input | points | kept | method | trivsel s | VTK's fastest | VTK s | ratio | trivsel GB | VTK GB "
+          "| memory ratio |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|")
+    for label, N, fraction, m, t, best, tv, ratio, gb, vgb in rows:
+        print(f"| {label} | {N} | {fraction:.0%} | {m} | {t:.2f} | {best} | {tv:.2f} | **{ratio:.2f}** | {gb:.2f} "
+              f"| {vgb:.2f} | **{gb / vgb:.2f}** |")
 
 
 if __name__ == "__main__":

@@ -37,7 +37,7 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from bench_cli import write_vti  # noqa: E402
+from bench_cli import t1_crop as crop, write_vti  # noqa: E402
 
 
 def old_fit(verts, weights, values, vertices):
@@ -68,16 +68,6 @@ def _peak_mb():
             if line.startswith("VmHWM:"):
                 return int(line.split()[1]) / 1024.0
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
-
-
-def crop(size):
-    from trivsel.study.realdata import REAL, central_crop, load_nifti, package_file
-
-    package, rel, _ = REAL["icbm152"]
-    path = package_file(package, rel)
-    if path is None:
-        raise SystemExit(f"bench_fit: the ICBM152 T1 needs {package}: pip install -e '.[realdata]'")
-    return central_crop(load_nifti(path, "icbm152"), size)
 
 
 def prepare(size, out):

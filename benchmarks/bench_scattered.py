@@ -54,7 +54,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-from bench_cli import VTK_FILTER  # noqa: E402  (VTK's filter as bench_cli.py runs it)
+from bench_cli import VTK_FILTER, run  # noqa: E402  (as bench_cli.py runs them)
 
 
 def trilinear(grid, points):
@@ -126,30 +126,10 @@ else:
 ''' + VTK_FILTER
 
 
-#: Runs a command in a forked grandchild and writes its peak resident memory (kB) to a file.
-#: ``ru_maxrss`` of a direct child would start at this benchmark's own size: a process keeps
-#: the high-water mark of the memory it was forked with across ``exec``.
-PEAK_LAUNCHER = """import os, sys
-pid = os.fork()
-if pid == 0:
-    os.execvp(sys.argv[2], sys.argv[2:])
-_, status, usage = os.wait4(pid, 0)
-open(sys.argv[1], "w").write(str(usage.ru_maxrss))
-sys.exit(os.waitstatus_to_exitcode(status))
-"""
-
-
 def run_process(cmd):
-    """Seconds and peak resident memory (GB) of one whole process."""
-    with tempfile.TemporaryDirectory() as tmp:
-        peak = Path(tmp) / "peak"
-        t0 = time.perf_counter()
-        r = subprocess.run([sys.executable, "-c", PEAK_LAUNCHER, str(peak), *map(str, cmd)],
-                           stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True)
-        seconds = time.perf_counter() - t0
-        if r.returncode:
-            raise SystemExit(f"failed: {' '.join(map(str, cmd))}\n{r.stderr[-2000:]}")
-        return seconds, int(peak.read_text()) / 2**20
+    """Seconds and peak resident memory (GB) of one whole process (:func:`bench_cli.run`)."""
+    seconds, _, gb = run(cmd)
+    return seconds, gb
 
 
 def write_input(data, path):

@@ -2,12 +2,14 @@
 r"""A study, not a product path: decimation (``method="decimate"``) in blocks by passes
 whose seams are locked, then freed by regions shifted half a block, and what it keeps.
 
-    python benchmarks/study_blocked_decimate.py      # about 2 minutes
+    python benchmarks/study_blocked_decimate.py      # about 3 minutes
 
-Prints, for Table-1 functions on small grids cut into 3^3 blocks, the vertices that the
-unblocked ``decimate`` keeps at an E_inf tolerance and those that the passes keep (with a
-halo of locked points around every cut, 0-3 grid steps), the merged mesh's E_RMS and
-E_inf, each mesh checked as a conforming tetrahedralisation of the box.  The finding and
+Prints, for Table-1 functions and the 48^3 T1 crop cut into 2^3 or 3^3 blocks, the vertices
+and E_RMS of the unblocked ``decimate`` at an E_inf tolerance, those of the passes (also
+with a halo of locked points around every cut, and with looser tolerances in the first
+passes), the merged mesh's E_RMS and E_inf (each mesh checked as a conforming
+tetrahedralisation of the box, its errors evaluated independently), and the unblocked
+run's E_RMS at the blocked run's vertex count.  The finding and
 why is in docs/notes/2026-12-04-meshes-and-blocks.md.
 
 Bottom-up decimation cannot start from prescribed faces as the inserting methods do
@@ -219,18 +221,18 @@ def _inner_boundary_vertices(tets, ijk, shape):
     return np.unique(tri[~on_box])
 
 
-def decimate_in_blocks(volume, plan, *, tol_inf, halo=0):
+def decimate_in_blocks(volume, plan, *, tol_inf, halo=0, schedule=(1.0, 1.0, 1.0)):
     """Every pass in this process (tests, benchmarks).  Returns ``(tets, stats)``: the
     merged mesh's tetrahedra (global indices) and, per pass, the regions' results without
     their arrays; the last pass's ``sse`` add up to the merged mesh's sum of squared
     residuals."""
     cuts = pass_cuts(plan)
-    done = {b: collapse_block(volume, plan, b, tol_inf=tol_inf, halo=halo) for b in plan.blocks()}
+    done = {b: collapse_block(volume, plan, b, tol_inf=tol_inf * schedule[0], halo=halo) for b in plan.blocks()}
     stats = [done]
     for p in range(1, PASSES):
         extents = {r: d["extent"] for r, d in done.items()}
         done = {r: collapse_region(volume, plan, cuts[p], r, {e: done[e] for e in overlapping(cuts[p], r, extents)},
-                                   tol_inf=tol_inf, halo=halo if p < PASSES - 1 else 0)
+                                   tol_inf=tol_inf * schedule[p], halo=halo if p < PASSES - 1 else 0)
                 for r in regions(cuts[p])}
         stats.append(done)
     drop = ("tets", "loose", "loose_tet")
@@ -252,26 +254,35 @@ def main():
     from trivsel import reduce, sample_grid
     from trivsel.blocks import check_tetrahedra, plan_blocks
     from trivsel.mesh import TetMesh, check_mesh
+    from trivsel.study.realdata import load_volume
 
-    print("| function | grid | block | E_inf tol | unblocked vertices | halo | blocked vertices | ratio "
-          "| blocked E_RMS / unblocked | blocked E_inf |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
-    for function, n, block, tol in ((2, 24, 8, 0.05), (4, 32, 11, 0.02), (4, 48, 16, 0.02)):
-        d = sample_grid(function, n)
+    print("| data | block | E_inf tol | variant | unblocked at tol: vertices, E_RMS | blocked: vertices (ratio), "
+          "E_RMS, E_inf | unblocked at the blocked count: E_RMS |")
+    print("|---|---|---|---|---|---|---|")
+    cases = [("f2 25^3", lambda: sample_grid(2, 24), 8, 0.05, [(0, (1, 1, 1)), (1, (1, 1, 1)), (2, (1, 1, 1)),
+                                                               (0, (0.5, 0.75, 1)), (0, (0.7, 0.85, 1))]),
+             ("f4 49^3", lambda: sample_grid(4, 48), 16, 0.02, [(0, (1, 1, 1))]),
+             ("T1 48^3", lambda: load_volume("icbm152"), 16, 40.0, [(0, (1, 1, 1))]),
+             ("T1 48^3", lambda: load_volume("icbm152"), 24, 40.0, [(0, (1, 1, 1))]),
+             ("T1 48^3", lambda: load_volume("icbm152"), 16, 20.0, [(0, (1, 1, 1))]),
+             ("T1 48^3", lambda: load_volume("icbm152"), 24, 20.0, [(0, (1, 1, 1))])]
+    for label, make, block, tol, variants in cases:
+        d = make()
         f = d.values.reshape(d.shape)
         plan = plan_blocks(f.shape, block)
         s = reduce(d, tol_inf=tol, method="decimate").snapshots[-1]
-        for halo in (0, 1, 2):
-            tets, _ = decimate_in_blocks(ArrayVolume(f), plan, tol_inf=tol, halo=halo)
+        for halo, schedule in variants:
+            tets, _ = decimate_in_blocks(ArrayVolume(f), plan, tol_inf=tol, halo=halo, schedule=schedule)
             check_tetrahedra(f.shape, tets)
             tm = TetMesh(d.points, d.values, d.ijk)
             tm.start(tets)
             check_mesh(tm)
             r = tm.residuals()[0]
             nv = len(np.unique(tets))
-            print(f"| f{function} | {n + 1}^3 | {block} | {tol} | {s.n_selected} | {halo} | {nv} | "
-                  f"{nv / s.n_selected:.2f} | {np.sqrt(np.mean(r * r)) / s.errors['E_rms']:.2f} | "
-                  f"{np.max(np.abs(r)):.4g} |", flush=True)
+            same = reduce(d, count=nv, method="decimate").snapshots[-1]
+            print(f"| {label} | {block} | {tol:g} | halo {halo}, tolerances x {schedule} | {s.n_selected}, "
+                  f"{s.errors['E_rms']:.4g} | {nv} ({nv / s.n_selected:.2f}), {np.sqrt(np.mean(r * r)):.4g}, "
+                  f"{np.max(np.abs(r)):.4g} | {same.errors['E_rms']:.4g} |", flush=True)
 
 
 if __name__ == "__main__":

@@ -442,6 +442,10 @@ class Decimation:
 
 #: Target wall time of one call into the compiled loop, so that Ctrl-C stops a run promptly.
 CHUNK_SECONDS = 0.25
+#: While lazy updates may be chosen, whether the run is far from its stop (:func:`_far`) is
+#: decided when the vertex count is a multiple of this, so that identical runs decide alike
+#: however long their timed chunks are.
+DECIDE_EVERY = 1024
 #: Default of ``exact_within``: lazy updates while more than twice the target count of
 #: vertices remain (or E_RMS, E_inf below half their tolerances).
 EXACT_WITHIN = 2.0
@@ -513,6 +517,8 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
             dec.lazy = not near and _far(dec, target, exact_within, tol_rms, tol_inf, N)
             if dec.lazy:
                 stop_at = max(stop_at, math.floor(exact_within * target))
+            if not near:  # decide lazy or exact at fixed counts only, not where a timed chunk ends
+                stop_at = max(stop_at, (dec.n_vertices - 1) // DECIDE_EVERY * DECIDE_EVERY)
             t0 = time.perf_counter()
             code = dec.run(stop_at, sse_max)
             took = time.perf_counter() - t0
