@@ -368,6 +368,18 @@ def test_identical_runs_decide_alike_however_the_chunks_are_timed(monkeypatch, s
     assert np.array_equal(runs[0].tets, runs[1].tets)
 
 
+def test_a_run_of_many_short_calls_ends(monkeypatch):
+    """Calls cut short at every decision count (here every vertex) keep their length bounded:
+    a million-point run made about a thousand of them, and the length, grown 4-fold each
+    time, overflowed a float."""
+    import trivsel.decimation as dm
+
+    monkeypatch.setattr(dm, "DECIDE_EVERY", 1)
+    monkeypatch.setattr(dm, "CHUNK_SECONDS", 1e12)
+    s = trivsel.reduce(trivsel.sample_grid(4, 10), method="decimate", tol_inf=0.05).snapshots[-1]
+    assert np.abs(s.residuals).max() <= 0.05
+
+
 def test_the_max_criterion_aims_at_e_inf():
     """criterion="max" takes the collapse that leaves the smallest largest residual first: on a
     noisy volume its E_inf is lower than the squared-error order's, its E_RMS higher."""

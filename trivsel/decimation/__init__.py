@@ -519,10 +519,11 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
                 stop_at = max(stop_at, math.floor(exact_within * target))
             if not near:  # decide lazy or exact at fixed counts only, not where a timed chunk ends
                 stop_at = max(stop_at, (dec.n_vertices - 1) // DECIDE_EVERY * DECIDE_EVERY)
-            t0 = time.perf_counter()
+            t0, n0 = time.perf_counter(), dec.n_vertices
             code = dec.run(stop_at, sse_max)
             took = time.perf_counter() - t0
-            step = int(min(max(step * CHUNK_SECONDS / max(took, 1e-6), 256), 4 * step))
+            # the next call's length from this one's rate, growing at most 4-fold, never past N
+            step = int(min(max((n0 - dec.n_vertices) * CHUNK_SECONDS / max(took, 1e-6), 256), 4 * step, N))
             if code != 0 and dec.lazy:
                 near = True  # a stop is decided with exact costs only
                 continue
