@@ -27,9 +27,11 @@ def mesh_volume(points, tets):
     return float(np.sum(np.abs(orient3d_float(np.asarray(points, float), tets)))) / 6.0
 
 
-def check_tetrahedra_of_file(points, tets, place="the mesh"):
+def check_tetrahedra_of_file(points, tets, place="the mesh", *, with_boundary=False):
     """``tets`` (M, 4) of ``points`` positively oriented, after one-line checks: indices in
-    range, four distinct vertices, no zero volume (exact), no face in more than two."""
+    range, four distinct vertices, no zero volume (exact), no face in more than two.  With
+    ``with_boundary``, also their boundary triangles, oriented outward (as
+    :func:`trivsel.triangulation.boundary_triangles` gives them, from the same face count)."""
     from ..triangulation import _exact_signs, face_multiplicity
 
     p = np.asarray(points, float)
@@ -49,27 +51,28 @@ def check_tetrahedra_of_file(points, tets, place="the mesh"):
         k = int(np.argmax(sign == 0))
         raise InputError(f"tetrahedron {k} of {place} is flat (zero volume): vertices {t[k].tolist()}")
     t[sign < 0] = t[sign < 0][:, [0, 2, 1, 3]]
-    faces = np.sort(np.concatenate([t[:, [1, 2, 3]], t[:, [0, 2, 3]], t[:, [0, 1, 3]], t[:, [0, 1, 2]]]), axis=1)
-    counts = face_multiplicity(faces)
+    # the face opposite local vertex i, the tet's vertex i on its negative side (boundary_triangles)
+    faces = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
+    counts = face_multiplicity(np.sort(faces, axis=1))
     if counts.max() > 2:
         k = int(np.argmax(counts > 2))
-        raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle {faces[k].tolist()} is a face of "
-                         f"{int(counts[k])} tetrahedra")
-    return t
+        raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle {sorted(faces[k].tolist())} is a "
+                         f"face of {int(counts[k])} tetrahedra")
+    return (t, faces[counts == 1]) if with_boundary else t
 
 
 def locate_points(points, tets, which, place="the mesh"):
     """For each point index in ``which``, the tetrahedron of ``tets`` (positively oriented)
     whose closed volume holds it (exact signs), searched among the tetrahedra with the
     nearest centroids first.  A point in none is refused with one line."""
+    p = np.asarray(points, float)
+    out = np.full(len(which), -1, np.int64)
+    if len(which) == 0:  # the usual case: scipy's import is not paid for nothing
+        return out
     from scipy.spatial import cKDTree
 
     from ..triangulation import _exact_signs
 
-    p = np.asarray(points, float)
-    out = np.full(len(which), -1, np.int64)
-    if len(which) == 0:
-        return out
     tree = cKDTree(p[tets].mean(axis=1))
     for i, q in enumerate(which):
         for k in (min(32, len(tets)), len(tets)):
@@ -89,25 +92,29 @@ def locate_points(points, tets, which, place="the mesh"):
     return out
 
 
-def start_mesh(data):
+def start_mesh(data, *, with_boundary=False):
     """``(tets, located)`` to start a decimation of non-grid ``data``: the file's own
     tetrahedra (``data.tets``) or the Delaunay tetrahedra of the points; ``located`` the
-    tetrahedron of each point that is no vertex (-1 for the vertices)."""
+    tetrahedron of each point that is no vertex (-1 for the vertices).  With
+    ``with_boundary``, also the mesh's boundary triangles (outward)."""
     import logging
 
-    from ..triangulation import start_tetrahedra
+    from ..triangulation import boundary_triangles, start_tetrahedra
 
     log = logging.getLogger("trivsel")
     if data.tets is not None:
         log.info("checking the %d tetrahedra of the mesh", len(data.tets))
-        tets = check_tetrahedra_of_file(data.points, data.tets, repr(data.name))
+        tets, boundary = check_tetrahedra_of_file(data.points, data.tets, repr(data.name), with_boundary=True)
     else:
         log.info("Delaunay tetrahedra of %d scattered points", data.n_points)
         tets = start_tetrahedra(data.points)
+        boundary = boundary_triangles(tets) if with_boundary else None
     located = np.full(data.n_points, -1, np.int64)
-    loose = np.setdiff1d(np.arange(data.n_points), np.unique(tets))
+    used = np.zeros(data.n_points, bool)
+    used[tets.ravel()] = True
+    loose = np.flatnonzero(~used)
     located[loose] = locate_points(data.points, tets, loose, repr(data.name))
-    return tets, located
+    return (tets, located, boundary) if with_boundary else (tets, located)
 
 
 def start_interior_mask(points, tets, located, boundary=None):

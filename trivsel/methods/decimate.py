@@ -80,10 +80,8 @@ def run(problem):
         interior = data.interior_mask()
     else:  # the start mesh's boundary is the domain's (for scattered points, their hull)
         from ..decimation.tetmesh import start_interior_mask, start_mesh
-        from ..triangulation import boundary_triangles
 
-        tets, located = start_mesh(data)
-        start = (tets, located, boundary_triangles(tets))
+        start = start_mesh(data, with_boundary=True)
         interior = start_interior_mask(data.points, *start)
     if opts.candidates == "interior":
         n_fixed = int(np.sum(~interior))
