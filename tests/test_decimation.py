@@ -368,6 +368,29 @@ def test_identical_runs_decide_alike_however_the_chunks_are_timed(monkeypatch, s
     assert np.array_equal(runs[0].tets, runs[1].tets)
 
 
+def test_the_queue_is_released_before_the_last_fit():
+    """After the last snapshot the queue, corner pool and scratch arrays are freed before the
+    fit (their memory does not add to the fit's), and the results are those of a run that keeps
+    them (a check callback keeps them)."""
+    import trivsel.decimation as dm
+
+    data = trivsel.sample_grid(4, 12)
+    kept = []
+    snaps = dm.reduce_by_collapse(data, [400, 100], values=("data", "fit"))[0]
+    same = dm.reduce_by_collapse(data, [400, 100], values=("data", "fit"), check=kept.append)[0]
+    for a, b in zip(snaps, same):
+        assert np.array_equal(a.tets, b.tets) and np.array_equal(a.fit["values"], b.fit["values"])
+    assert all(len(getattr(kept[-1].S, k)) > 0 for k in dm.Decimation.QUEUE_FIELDS)
+    dec = dm.Decimation(data.ijk, data.shape, data.values)
+    dec.run(100)
+    dec.release_queue()
+    assert all(len(getattr(dec.S, k)) == 0 for k in dm.Decimation.QUEUE_FIELDS)
+    assert dec.tetrahedra().shape[0] > 0 and len(dec.vertices()) == 100
+    dec.point_weights()
+    with pytest.raises(RuntimeError, match="released"):
+        dec.run(50)
+
+
 def test_a_run_of_many_short_calls_ends(monkeypatch):
     """Calls cut short at every decision count (here every vertex) keep their length bounded:
     a million-point run made about a thousand of them, and the length, grown 4-fold each

@@ -340,6 +340,7 @@ class Decimation:
         self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy) if state is None else state
         self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
+        self.released = False
         self._k = kernels(self.S)
         self._k.init(self.S, self.tol_inf)
 
@@ -374,6 +375,8 @@ class Decimation:
     def run(self, count, sse_max=INF):
         """Collapse to ``count`` vertices; returns 0 (reached), 1 (no valid collapse left)
         or 2 (the next collapse would exceed ``sse_max``)."""
+        if self.released:
+            raise RuntimeError("this decimation's queue was released: no collapse can follow")
         while True:
             code = int(self._k.run(self.S, int(count), float(sse_max), self.tol_inf))
             if code != 3:
@@ -398,6 +401,19 @@ class Decimation:
         S.ctr[C_PTOP] = cap.sum()
         self.S = S._replace(cpool=pool)
         self.compactions += 1
+
+    #: The fields only collapses use: the queue, the corner pool and the scratch arrays.
+    QUEUE_FIELDS = ("cpool", "vstart", "vcap", "deg", "hv", "hpos", "hkey", "hsse", "htgt", "hdeg", "mark", "dirty",
+                    "pbuf", "phome", "aff")
+
+    def release_queue(self):
+        """Free what only further collapses would use (:attr:`QUEUE_FIELDS`, about half the
+        state) once none will follow, so that what comes after (the fit) does not add its
+        memory to theirs.  The mesh, the buckets and the residuals stay: tetrahedra, vertices,
+        residuals and point weights are read as before; :meth:`run` is refused."""
+        self.S = self.S._replace(**{k: np.empty((0,) + getattr(self.S, k).shape[1:], getattr(self.S, k).dtype)
+                                    for k in self.QUEUE_FIELDS})
+        self.released = True
 
     def removed(self):
         """The removed points, in order of removal."""
@@ -534,6 +550,10 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
             check(dec)
         r = dec.residuals()
         fit = None
+        if check is None and (stopped or target == min(int(t) for t in targets)):
+            # the last snapshot: the fit's memory does not come on top of the queue's (a check
+            # callback may keep the decimation to inspect its queue: then it stays)
+            dec.release_queue()
         if "fit" in values:
             from ..fitting import fit_on_mesh
 
