@@ -126,12 +126,6 @@ else:
 ''' + VTK_FILTER
 
 
-def run_process(cmd):
-    """Seconds and peak resident memory (GB) of one whole process (:func:`bench_cli.run`)."""
-    seconds, _, gb = run(cmd)
-    return seconds, gb
-
-
 def write_input(data, path):
     """The input as a user has it: scattered points as an .npz, a mesh as a .vtu of its tetrahedra."""
     if data.tets is None:
@@ -161,8 +155,8 @@ def processes(data, K, vtk, repeats, folder):
     runs = {k: [] for k in progs}
     for _ in range(repeats):
         for name, cmd in progs.items():
-            runs[name].append(run_process(cmd))
-    return {k: (statistics.median(r[0] for r in v), max(r[1] for r in v)) for k, v in runs.items()}
+            runs[name].append(run(cmd))  # seconds, stdout, peak GB
+    return {k: (statistics.median(r[0] for r in v), max(r[2] for r in v)) for k, v in runs.items()}
 
 
 def vtk_delaunay_seconds(points, repeats):
@@ -190,7 +184,7 @@ def measure(label, data, fraction, repeats, say, folder):
         r = trivsel.reduce(data, count=K, method="decimate", values=["data", "fit"])
         runs.append(time.perf_counter() - t0)
     s = r.snapshots[-1]
-    before, _ = start_mesh(data)
+    before = start_mesh(data)[0]
     check_mesh_keeps_domain(data.points, before, s.tets)
     v0 = mesh_volume(data.points, before)
     proc = processes(data, K, vtk, repeats, folder)
@@ -246,7 +240,7 @@ def main(argv=None):
                     say(f"{label}, {fr:g} ...")
                     if a.trivsel_only:
                         src = write_input(d, Path(tmp) / "input")
-                        sec, gb = run_process(trivsel_command(src, Path(tmp) / "out", ["--fractions", str(fr)]))
+                        sec, _, gb = run(trivsel_command(src, Path(tmp) / "out", ["--fractions", str(fr)]))
                         rows.append({"input": label, "fraction": fr, "N": d.n_points, "trivsel_process_s": sec,
                                      "trivsel_GB": gb})
                     else:

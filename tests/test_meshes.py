@@ -75,7 +75,7 @@ def corner_vertices(p, tets):
 def decimated(pts, f, tets=None, count=None):
     d = scattered(pts, f)
     d.tets = tets
-    t0, located = start_mesh(d)
+    t0, located, _ = start_mesh(d)
     dec = Decimation.on_mesh(pts, t0, f, located=located)
     dec.run(count if count is not None else len(pts) // 10)
     return t0, dec

@@ -340,7 +340,6 @@ class Decimation:
         self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy) if state is None else state
         self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
-        self.released = False
         self._k = kernels(self.S)
         self._k.init(self.S, self.tol_inf)
 
@@ -413,7 +412,11 @@ class Decimation:
         residuals and point weights are read as before; :meth:`run` is refused."""
         self.S = self.S._replace(**{k: np.empty((0,) + getattr(self.S, k).shape[1:], getattr(self.S, k).dtype)
                                     for k in self.QUEUE_FIELDS})
-        self.released = True
+
+    @property
+    def released(self):
+        """Whether :meth:`release_queue` has run (the corner pool is never empty before)."""
+        return self.S.cpool.size == 0
 
     def removed(self):
         """The removed points, in order of removal."""
@@ -493,9 +496,8 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     the points in the order in which a selection grows (the final vertices in index
     order, then the removed points from last to first: ``selected[:k]`` is the
     selection of a snapshot with ``k`` points), the counters, and the seconds spent on
-    the snapshots' errors and fits.  ``start``: the start mesh of non-grid data, ``(tets,
-    located)`` of :func:`trivsel.decimation.tetmesh.start_mesh` and its boundary triangles,
-    when the caller has them.
+    the snapshots' errors and fits.  ``start``: the start mesh of non-grid data, as
+    :func:`trivsel.decimation.tetmesh.start_mesh` gives it, when the caller has it.
     """
     import math
     import time
@@ -512,7 +514,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
     else:
         from .tetmesh import start_mesh
 
-        tets, located, boundary = (*start_mesh(data), None) if start is None else start
+        tets, located, boundary = start_mesh(data) if start is None else start
         dec = Decimation.on_mesh(data.points, tets, data.values, located=located, tol_inf=tol_inf, key=key,
                                  boundary=boundary)
         if candidates == "interior":
@@ -550,7 +552,7 @@ def reduce_by_collapse(data, targets, *, tol_rms=None, tol_inf=None, candidates=
             check(dec)
         r = dec.residuals()
         fit = None
-        if check is None and (stopped or target == min(int(t) for t in targets)):
+        if check is None and (stopped or target == last):
             # the last snapshot: the fit's memory does not come on top of the queue's (a check
             # callback may keep the decimation to inspect its queue: then it stays)
             dec.release_queue()

@@ -27,11 +27,11 @@ def mesh_volume(points, tets):
     return float(np.sum(np.abs(orient3d_float(np.asarray(points, float), tets)))) / 6.0
 
 
-def check_tetrahedra_of_file(points, tets, place="the mesh", *, with_boundary=False):
-    """``tets`` (M, 4) of ``points`` positively oriented, after one-line checks: indices in
-    range, four distinct vertices, no zero volume (exact), no face in more than two.  With
-    ``with_boundary``, also their boundary triangles, oriented outward (as
-    :func:`trivsel.triangulation.boundary_triangles` gives them, from the same face count)."""
+def check_tetrahedra_of_file(points, tets, place="the mesh"):
+    """``(tets, boundary)``: ``tets`` (M, 4) of ``points`` positively oriented, after one-line
+    checks (indices in range, four distinct vertices, no zero volume (exact), no face in more
+    than two), and their boundary triangles, oriented outward as
+    :func:`trivsel.triangulation.boundary_triangles` gives them, from the same face count."""
     from ..triangulation import _exact_signs, face_multiplicity
 
     p = np.asarray(points, float)
@@ -58,7 +58,7 @@ def check_tetrahedra_of_file(points, tets, place="the mesh", *, with_boundary=Fa
         k = int(np.argmax(counts > 2))
         raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle {sorted(faces[k].tolist())} is a "
                          f"face of {int(counts[k])} tetrahedra")
-    return (t, faces[counts == 1]) if with_boundary else t
+    return t, faces[counts == 1]
 
 
 def locate_points(points, tets, which, place="the mesh"):
@@ -92,11 +92,11 @@ def locate_points(points, tets, which, place="the mesh"):
     return out
 
 
-def start_mesh(data, *, with_boundary=False):
-    """``(tets, located)`` to start a decimation of non-grid ``data``: the file's own
+def start_mesh(data):
+    """``(tets, located, boundary)`` to start a decimation of non-grid ``data``: the file's own
     tetrahedra (``data.tets``) or the Delaunay tetrahedra of the points; ``located`` the
-    tetrahedron of each point that is no vertex (-1 for the vertices).  With
-    ``with_boundary``, also the mesh's boundary triangles (outward)."""
+    tetrahedron of each point that is no vertex (-1 for the vertices); the mesh's boundary
+    triangles (outward)."""
     import logging
 
     from ..triangulation import boundary_triangles, start_tetrahedra
@@ -104,29 +104,27 @@ def start_mesh(data, *, with_boundary=False):
     log = logging.getLogger("trivsel")
     if data.tets is not None:
         log.info("checking the %d tetrahedra of the mesh", len(data.tets))
-        tets, boundary = check_tetrahedra_of_file(data.points, data.tets, repr(data.name), with_boundary=True)
+        tets, boundary = check_tetrahedra_of_file(data.points, data.tets, repr(data.name))
     else:
         log.info("Delaunay tetrahedra of %d scattered points", data.n_points)
         tets = start_tetrahedra(data.points)
-        boundary = boundary_triangles(tets) if with_boundary else None
+        boundary = boundary_triangles(tets)
     located = np.full(data.n_points, -1, np.int64)
     used = np.zeros(data.n_points, bool)
     used[tets.ravel()] = True
     loose = np.flatnonzero(~used)
     located[loose] = locate_points(data.points, tets, loose, repr(data.name))
-    return (tets, located, boundary) if with_boundary else (tets, located)
+    return tets, located, boundary
 
 
-def start_interior_mask(points, tets, located, boundary=None):
+def start_interior_mask(points, tets, located, boundary):
     """Points not on the boundary of the start mesh ``tets`` (:func:`start_mesh`): the mesh's
     vertices on none of its boundary triangles, and the points no tetrahedron uses
     (``located[i] >= 0``) that lie on no boundary face of their tetrahedron (exact signs).
     For scattered points this is the convex hull's surface without computing the hull again.
-    ``boundary``: the boundary triangles of ``tets``, when the caller has them."""
-    from ..triangulation import boundary_triangles
-
+    ``boundary``: the boundary triangles of ``tets`` (:func:`start_mesh` gives them)."""
     p = np.asarray(points, float)
-    bnd = boundary_triangles(tets) if boundary is None else boundary
+    bnd = boundary
     inner = np.ones(len(p), bool)
     inner[np.unique(bnd)] = False
     loose = np.flatnonzero(located >= 0)

@@ -81,7 +81,7 @@ def run(problem):
     else:  # the start mesh's boundary is the domain's (for scattered points, their hull)
         from ..decimation.tetmesh import start_interior_mask, start_mesh
 
-        start = start_mesh(data, with_boundary=True)
+        start = start_mesh(data)
         interior = start_interior_mask(data.points, *start)
     if opts.candidates == "interior":
         n_fixed = int(np.sum(~interior))
