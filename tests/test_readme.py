@@ -136,6 +136,17 @@ def test_readme_set_up_commands_verbatim():
         assert f"\n{command}\n" in text, f"README.md lost the set-up command: {command}"
 
 
+def test_ci_runs_the_readme_test_command_from_a_fresh_venv():
+    """.ci/run makes a fresh venv (the old one removed, nothing installed by hand before it) and
+    runs the README's test command as one line, character for character."""
+    lines = (README.parent / ".ci" / "run").read_text(encoding="utf-8").splitlines()
+    command = SET_UP_COMMANDS[1]
+    assert command in lines, ".ci/run does not run the README's test command verbatim"
+    before = lines[:lines.index(command)]
+    assert "rm -rf .venv" in before
+    assert not any(w in ln for ln in before if not ln.lstrip().startswith("#") for w in ("pip ", "apt-get"))
+
+
 def test_readme_is_short_and_self_contained():
     text = _text()
     n_lines = len(text.splitlines())
