@@ -282,3 +282,43 @@ def test_a_mesh_on_a_float_lattice_takes_the_exact_integer_path():
     assert dec.S.ctr[C_FLOAT] == 0
     dec.run(40)
     check_mesh_keeps_domain(q, t, dec.tetrahedra())
+
+
+def test_face_multiplicity_counts_each_triangle_by_its_key_and_by_rows():
+    """The counts of equal sorted triples, on the int64-key path and on the row path
+    (indices too large for one key), against a dictionary count."""
+    from collections import Counter
+
+    from trivsel.triangulation import face_multiplicity
+
+    rng = np.random.default_rng(3)
+    for hi in (40, 2**22):  # 40^3 fits one int64 key; (2^22)^3 does not
+        rows = np.sort(rng.integers(0, hi, (3000, 3)), axis=1)
+        rows = np.concatenate([rows, rows[:700], rows[:90]])  # faces seen once, twice and three times
+        rng.shuffle(rows)
+        seen = Counter(map(tuple, rows.tolist()))
+        assert face_multiplicity(rows).tolist() == [seen[tuple(r)] for r in rows.tolist()]
+
+
+def test_exact_signs_agree_with_the_robust_predicate_near_flat_tetrahedra():
+    """Signs from the fast flat-array volumes with the exact fallback: nearly flat
+    tetrahedra (a fourth point a few ulps off the plane of three) and exactly flat ones get
+    the sign of the robust predicate, and the volumes equal the reference formula to rounding."""
+    from trivsel.predicates import orient3d_float_sign
+    from trivsel.triangulation import _exact_signs, _signed_volumes6, orient3d_float
+
+    rng = np.random.default_rng(5)
+    a, b, c = rng.uniform(-1, 1, (3, 200, 3))
+    s, t = rng.uniform(0.1, 0.4, (2, 200, 1))
+    on = a + s * (b - a) + t * (c - a)
+    d = on + rng.integers(-3, 4, (200, 3)) * np.spacing(np.abs(on))
+    # and 20 exactly flat ones, on integer coordinates
+    a[:20], b[:20], c[:20] = rng.integers(-50, 50, (3, 20, 3))
+    d[:20] = a[:20] + 2 * (b[:20] - a[:20]) - 3 * (c[:20] - a[:20])
+    p = np.concatenate([a, b, c, d])
+    tets = np.arange(800).reshape(4, 200).T
+    want = [orient3d_float_sign(*p[i], *p[j], *p[k], *p[m]) for i, j, k, m in tets]
+    assert 0 in want and 1 in want and -1 in want
+    assert _exact_signs(p, tets).tolist() == want
+    ref = orient3d_float(p, tets)
+    assert np.allclose(_signed_volumes6(p, tets), ref, rtol=0, atol=1e-12)

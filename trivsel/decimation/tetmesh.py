@@ -22,9 +22,9 @@ __all__ = ["start_mesh", "check_tetrahedra_of_file", "locate_points", "mesh_volu
 
 def mesh_volume(points, tets):
     """The volume of a tetrahedral mesh (sum of its tetrahedra's, in float)."""
-    from ..triangulation import orient3d_float
+    from ..triangulation import _signed_volumes6
 
-    return float(np.sum(np.abs(orient3d_float(np.asarray(points, float), tets)))) / 6.0
+    return float(np.sum(np.abs(_signed_volumes6(np.asarray(points, float), tets)))) / 6.0
 
 
 def check_tetrahedra_of_file(points, tets, place="the mesh"):
