@@ -18,7 +18,7 @@ memory, a real volume, and the plan of a 1025^3 run.
         The same ``trivsel blocks`` run locally (``-c cores``) and through the SLURM profile
         (the loopback SLURM of scripts/slurm-local.sh, which must be running): wall times, cluster
         jobs submitted, and the two results compared.  ``--ungrouped`` adds a SLURM run with one
-        cluster job per plane and per block (``--group-components planes=1 blocks=1``).
+        cluster job per plane and per block (``--job-points 0``).
     python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
         The jobs and resources of a 1025^3 run (``-n``; the .pvtu output, no merged .vtu,
         which would need tens of GB in one job at this size), and its core-hours estimated from
@@ -220,14 +220,16 @@ def slurm(a):
     print(f"f{a.function}, n {a.n}, blocks of {a.block}: {len(plan_.blocks())} blocks, {len(plan_.planes())} planes; "
           f"group_components {group_components(plan_)}; -c {a.cores}; load average before "
           f"{os.getloadavg()[0]:.1f}")
-    runs = [("local", []), ("slurm, grouped", on_slurm)]
+    runs = [("local", []), ("slurm, batched", on_slurm)]
     if a.ungrouped:
-        runs.append(("slurm, one job per plane and block", on_slurm + ["--group-components", "planes=1", "blocks=1"]))
+        runs.append(("slurm, one job per plane and block", ["--job-points", "0"] + on_slurm))
     results = {}
     for name, extra in runs:
         out = RESULTS / f"slurm_f{a.function}_n{a.n}_b{a.block}_{name.split(',')[0]}{len(results)}"
         shutil.rmtree(out, ignore_errors=True)
-        cmd = [sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(out), "-c", str(a.cores), *extra]
+        # --verbose: Snakemake's own log, which names the SLURM jobs it submits
+        cmd = [sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(out), "-c", str(a.cores), "--verbose",
+               *extra]
         t0 = time.perf_counter()
         r = subprocess.run(cmd, capture_output=True, text=True)
         wall = time.perf_counter() - t0

@@ -136,6 +136,10 @@ def build_parser():
     b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
     b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
     b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
+    b.add_argument("--job-points", type=int, metavar="N",
+                   help="planes and blocks smaller than N grid points are reduced several to a job, one after "
+                        "the other in one process (default: 2000000 on a cluster, where each job costs seconds of "
+                        "scheduling; 0, one job per plane and block, on a local run); the results are the same")
     b.add_argument("-n", "--dry-run", action="store_true",
                    help="show the jobs and their resources; run nothing and create nothing")
     b.add_argument("-v", "--verbose", action="store_true",
@@ -443,7 +447,7 @@ def _cmd_blocks(a, snakemake_args):
 
     try:
         done = run_workflow(a.out, config, cores=a.cores, snakemake_args=snakemake_args, dry_run=a.dry_run,
-                            verbose=a.verbose, show=sys.stderr.isatty())
+                            verbose=a.verbose, show=sys.stderr.isatty(), job_points=a.job_points)
     except JobFailed as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return exc.status

@@ -48,7 +48,7 @@ from . import slurm
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
            "check_tetrahedra", "job_resources",
-           "group_components"]
+           "group_components", "job_batches"]
 
 #: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
@@ -408,16 +408,17 @@ def job_resources(plan, kind, item=None, *, merged=True):
 
 
 #: Grid points a cluster job should hold at least: a cluster spends seconds scheduling each job
-#: (about 8 s on a single-node SLURM), so plane and block jobs smaller than this are run several
-#: to a cluster job (Snakemake's group jobs; :func:`group_components`).
+#: (about 8 s on a single-node SLURM), and each job starts Snakemake and Python, so planes and
+#: blocks smaller than this are reduced several to a cluster job (:func:`group_components`).
 MIN_CLUSTER_JOB_POINTS = 2_000_000
 
 
 def group_components(plan, *, min_points=MIN_CLUSTER_JOB_POINTS):
-    """How many jobs of each group of the blocked workflow one cluster job runs, as Snakemake's
-    ``--group-components`` takes them: ``{"planes": P, "blocks": B}``, enough jobs for their
-    points to reach ``min_points`` (at most all of them, at least one), evened out over the
-    cluster jobs."""
+    """How many planes and how many blocks one cluster job reduces (one after the other, in
+    one process: the workflow's rules ``planes_K`` and ``blocks_K``), ``{"planes": P, "blocks":
+    B}``: enough for their points to reach ``min_points`` (at most all of them, at least one),
+    evened out over the cluster jobs.  ``trivsel blocks`` gives them to a cluster run as
+    ``--config planes_per_job=P blocks_per_job=B``."""
     planes = [plan.shape[u] * plan.shape[v] for u, v in (_others(a) for a, _ in plan.planes())]
     blocks = [int(np.prod([r[1] - r[0] for r in plan.block_region(b)])) for b in plan.blocks()]
     out = {}
@@ -425,6 +426,15 @@ def group_components(plan, *, min_points=MIN_CLUSTER_JOB_POINTS):
         per_job = min(len(n), max(1, int(np.ceil(min_points / np.mean(n)))))
         out[name] = int(np.ceil(len(n) / np.ceil(len(n) / per_job)))
     return out
+
+
+def job_batches(items, per_job):
+    """``items`` (the plan's planes or blocks, in plan order) in consecutive runs of
+    ``per_job``: the items one cluster job reduces (neighbours, so that its reads are near
+    one another)."""
+    items = list(items)
+    per_job = max(int(per_job), 1)
+    return [items[i:i + per_job] for i in range(0, len(items), per_job)]
 
 
 # ----------------------------------------------------------------------------- jobs (files)
@@ -1065,7 +1075,8 @@ def _follow(proc, out, show):
     return done, JobFailed(f"Snakemake failed (exit status {proc.returncode}): {last}")
 
 
-def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, verbose=False, show=False):
+def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, verbose=False, show=False,
+                 job_points=None):
     """Run the blocked workflow in the folder ``out`` (:data:`SNAKEFILE`), keeping the output
     contract of ``trivsel reduce``.
 
@@ -1084,6 +1095,10 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     * an interruption (KeyboardInterrupt, which the CLI raises on SIGTERM too) stops
       Snakemake and every job it started (their process group), removes their temporary
       files and raises again; finished jobs are kept for the next run.
+
+    ``job_points``: planes and blocks of fewer grid points are reduced several to a job
+    (:func:`group_components`); default :data:`MIN_CLUSTER_JOB_POINTS` on a cluster, 0 (one job
+    per plane and block) on a local run.  The results do not depend on it.
 
     ``verbose`` passes Snakemake's own output through; otherwise ``show`` prints one progress
     line over the jobs.  Returns the number of Snakemake's steps done (None with ``verbose``;
@@ -1104,6 +1119,10 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                          "pip install 'trivsel[workflow]'")
     cores = check_cores(cores)
     check_snakemake_args(snakemake_args)
+    if job_points is None:
+        job_points = 0 if _runs_locally(snakemake_args) else MIN_CLUSTER_JOB_POINTS
+    if isinstance(job_points, bool) or not isinstance(job_points, (int, np.integer)) or job_points < 0:
+        raise InputError(f"--job-points must be a whole number of grid points, 0 or more; got {job_points!r}")
     source = [config["input"]] if config.get("input") is not None else []
     out = check_output_dir(out, source)
     full = make_config(config)
@@ -1113,7 +1132,8 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     check_new_input(out, full)
     # batch small jobs on a cluster; name the SLURM jobs after the folder, so that they can be
     # found and cancelled (Snakemake's arguments given after `--` come later and win)
-    batch = ["--group-components", *(f"{k}={v}" for k, v in group_components(Plan.from_dict(full["plan"])).items())]
+    batch = [] if job_points == 0 else ["--config", *(
+        f"{k}_per_job={v}" for k, v in group_components(Plan.from_dict(full["plan"]), min_points=job_points).items())]
     prefix = slurm.job_prefix(out) if importlib.util.find_spec("snakemake_executor_plugin_slurm") else None
     if prefix:
         batch += ["--slurm-jobname-prefix", prefix]
@@ -1199,15 +1219,16 @@ def _slurm_failure(prefix, since, out):
 
 
 def main(argv=None):
-    """``python -m trivsel.blocks KIND OUT [ITEM]``: one job of a blocked run (the workflow's rules)."""
+    """``python -m trivsel.blocks KIND OUT [ITEM ...]``: one job of a blocked run (the workflow's
+    rules); planes and blocks several at once (a cluster job's batch)."""
     import signal
     import sys
 
     from ..exceptions import one_line
 
     args = sys.argv[1:] if argv is None else argv
-    if len(args) not in (2, 3):
-        print("usage: python -m trivsel.blocks {kernels,lines,plane,block,merge} OUT [ITEM]", file=sys.stderr)
+    if len(args) < 2 or (len(args) > 3 and args[0] not in ("plane", "block")):
+        print("usage: python -m trivsel.blocks {kernels,lines,plane,block,merge} OUT [ITEM ...]", file=sys.stderr)
         return 2
     def stop(signum, frame):
         raise KeyboardInterrupt
@@ -1215,10 +1236,14 @@ def main(argv=None):
     # stopped with its run (SIGTERM to the process group): the atomic writers remove their
     # temporary files on the way out
     signal.signal(signal.SIGTERM, stop)
+    items = args[2:] or [""]
+    item = items[0]
     try:
-        run_job(args[1], args[0], args[2] if len(args) == 3 else "")
+        for item in items:  # a batch: one after the other, in this process
+            run_job(args[1], args[0], item)
     except InputError as exc:
-        print(f"trivsel: error: {one_line(exc)}", file=sys.stderr)
+        where = f"{args[0]} {item}: " if len(items) > 1 else ""
+        print(f"trivsel: error: {where}{one_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("trivsel: error: stopped by a signal", file=sys.stderr)

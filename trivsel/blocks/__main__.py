@@ -1,4 +1,4 @@
-"""``python -m trivsel.blocks KIND OUT [ITEM]``: one job of a blocked run (the workflow's rules)."""
+"""``python -m trivsel.blocks KIND OUT [ITEM ...]``: one job of a blocked run (the workflow's rules)."""
 
 from . import main
 

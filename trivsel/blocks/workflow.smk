@@ -9,20 +9,31 @@
 # size (trivsel.blocks.job_resources), so a cluster executor gets them unchanged:
 #   trivsel blocks ... -- --executor slurm --workflow-profile workflow/profiles/slurm
 #
-# Groups (used by cluster executors only; a local run ignores them): the kernels and the three
-# line jobs form one cluster job, and planes and blocks are batched several to a cluster job by
-# `--group-components planes=P blocks=B`, which `trivsel blocks` sets from the jobs' sizes
-# (trivsel.blocks.group_components), so that a cluster's scheduling time per job does not
-# dominate small jobs.  A group job runs its jobs side by side on the cores Snakemake is given.
+# Batches (cluster runs): a cluster spends seconds on each job it schedules, so `trivsel blocks`
+# sets `--config planes_per_job=P blocks_per_job=B` from the jobs' sizes
+# (trivsel.blocks.group_components) and each cluster job reduces P planes or B blocks, one after
+# the other in one process (rules planes_K and blocks_K).  Without them (local runs), one job
+# per plane and per block (rules plane and block).  The kernels and the three line jobs form
+# one cluster job (group "lines").
 
 import sys
 
-from trivsel.blocks import block_faces, item_name, job_resources, parse_item, read_config
+from trivsel.blocks import block_faces, item_name, job_batches, job_resources, parse_item, read_config
 
 CFG, PLAN = read_config(".")
 PY = sys.executable
 PLANES = [item_name(x) for x in PLAN.planes()]
 BLOCKS = [item_name(x) for x in PLAN.blocks()]
+PLANES_PER_JOB = int(config.get("planes_per_job", 1))
+BLOCKS_PER_JOB = int(config.get("blocks_per_job", 1))
+
+
+def plane_inputs(plane):
+    return [f"lines/{axis}.npz" for axis in range(3) if axis != plane[0]]
+
+
+def block_inputs(block):
+    return [f"planes/{item_name(p)}.npz" for p, _ in block_faces(PLAN, block)]
 
 
 wildcard_constraints:
@@ -85,45 +96,79 @@ rule lines:
         "'{params.py}' -m trivsel.blocks lines . {wildcards.axis} > {log} 2>&1"
 
 
-rule plane:
-    input:
-        lambda wc: [f"lines/{axis}.npz" for axis in range(3) if axis != parse_item(wc.plane)[0]],
-    output:
-        "planes/{plane}.npz",
-    group:
-        "planes"
-    log:
-        "logs/plane/{plane}.log",
-    benchmark:
-        "benchmarks/plane/{plane}.tsv"
-    resources:
-        mem_mb=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[0],
-        runtime=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[1],
-    params:
-        py=PY,
-    shell:
-        "'{params.py}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
+# one job per plane and per block (a local run, or a cluster run asked for it)
+if PLANES_PER_JOB <= 1:
+
+    rule plane:
+        input:
+            lambda wc: plane_inputs(parse_item(wc.plane)),
+        output:
+            "planes/{plane}.npz",
+        log:
+            "logs/plane/{plane}.log",
+        benchmark:
+            "benchmarks/plane/{plane}.tsv"
+        resources:
+            mem_mb=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[0],
+            runtime=lambda wc: job_resources(PLAN, "plane", parse_item(wc.plane))[1],
+        params:
+            py=PY,
+        shell:
+            "'{params.py}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
 
 
-rule block:
-    input:
-        lambda wc: [f"planes/{item_name(p)}.npz" for p, _ in block_faces(PLAN, parse_item(wc.block))],
-    output:
-        "pieces/{block}.npz",
-        "pieces/{block}.vtu",
-    group:
-        "blocks"
-    log:
-        "logs/block/{block}.log",
-    benchmark:
-        "benchmarks/block/{block}.tsv"
-    resources:
-        mem_mb=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[0],
-        runtime=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[1],
-    params:
-        py=PY,
-    shell:
-        "'{params.py}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
+if BLOCKS_PER_JOB <= 1:
+
+    rule block:
+        input:
+            lambda wc: block_inputs(parse_item(wc.block)),
+        output:
+            "pieces/{block}.npz",
+            "pieces/{block}.vtu",
+        log:
+            "logs/block/{block}.log",
+        benchmark:
+            "benchmarks/block/{block}.tsv"
+        resources:
+            mem_mb=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[0],
+            runtime=lambda wc: job_resources(PLAN, "block", parse_item(wc.block))[1],
+        params:
+            py=PY,
+        shell:
+            "'{params.py}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
+
+
+# one cluster job per batch of planes and of blocks, each reduced in one process
+for _kind, _items, _per_job, _inputs, _outputs in (
+    ("plane", PLAN.planes(), PLANES_PER_JOB, plane_inputs, lambda x: [f"planes/{item_name(x)}.npz"]),
+    ("block", PLAN.blocks(), BLOCKS_PER_JOB, block_inputs,
+     lambda x: [f"pieces/{item_name(x)}.npz", f"pieces/{item_name(x)}.vtu"]),
+):
+    if _per_job <= 1:
+        continue
+    for _k, _batch in enumerate(job_batches(_items, _per_job)):
+        _mem, _minutes = zip(*(job_resources(PLAN, _kind, x) for x in _batch))
+
+        rule:
+            name:
+                f"{_kind}s_{_k}"
+            input:
+                sorted({f for x in _batch for f in _inputs(x)}),
+            output:
+                [f for x in _batch for f in _outputs(x)],
+            log:
+                f"logs/{_kind}/batch_{_k}.log",
+            benchmark:
+                f"benchmarks/{_kind}/batch_{_k}.tsv"
+            resources:
+                mem_mb=max(_mem),
+                runtime=sum(_minutes),
+            params:
+                py=PY,
+                kind=_kind,
+                names=" ".join(item_name(x) for x in _batch),
+            shell:
+                "'{params.py}' -m trivsel.blocks {params.kind} . {params.names} > {log} 2>&1"
 
 
 rule merge:
