@@ -298,6 +298,8 @@ def test_workflow_dry_run_plans_resources(tmp_path):
     (["--function", "4", "--n", "16", "--block", "4", "--tol-inf", "-1"], "tol_inf"),
     (["--function", "9", "--n", "16", "--block", "4", "--tol-inf", "0.1"], "function"),
     (["missing.zarr", "--block", "4", "--tol-inf", "0.1"], "missing.zarr"),
+    (["--function", "4", "--n", "16", "--block", "4", "--tol-inf", "0.1", "--job-points", "-1"],
+     "--job-points must be a whole number of grid points, 0 or more; got -1"),
 ])
 def test_blocks_bad_input(tmp_path, args, message):
     r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", *args, "--out", str(tmp_path / "o")],
