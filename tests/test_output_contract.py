@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -468,3 +469,33 @@ def test_a_signal_while_the_outputs_are_moved_lets_the_moves_finish(tmp_path, mo
     monkeypatch.setattr(tio, "_commit", signalled)
     assert _run("--fractions", "0.3", "--out", str(out)) == 0
     assert _listing(out) == [tio.MANIFEST, "errors.csv", "mesh_0.3.vtu", "result.json"]
+
+
+@pytest.mark.slow
+def test_blocks_on_a_full_disk_give_one_line_and_resume_once_there_is_room(tmp_path):
+    """On a real 1.5 MB tmpfs: a first blocked run fits; a second, larger one fills the disk in a
+    job (whose log then stays empty): one line that says so, exit 1, no temporary file, the first
+    run's files as they were; with room again (the tmpfs grown), the same command completes."""
+    py = f"{sys.executable} -m trivsel blocks --function 4 --tol-inf 0.01 -c 2"
+    p = _tiny_tmpfs_script(tmp_path, f"""
+mount -o remount,size=1500k $T || exit 99
+{py} --n 8 --block 4 --out $T/a >/dev/null 2>&1 || exit 98
+cd $T/a && find . -type f -not -path './.snakemake/*' | sort | xargs md5sum > $T/../before.txt
+{py} --n 32 --block 8 --out $T/b 2>$T/../err.txt >/dev/null
+echo "rc=$?"
+find $T -name '.trivsel-tmp-*'
+cd $T/a && find . -type f -not -path './.snakemake/*' | sort | xargs md5sum > $T/../after.txt
+mount -o remount,size=64m $T
+{py} --n 32 --block 8 --out $T/b 2>$T/../err2.txt >/dev/null
+echo "rerun rc=$?"
+""")
+    if p is None:
+        pytest.skip("needs root and unshare to mount a tmpfs")
+    assert "rc=1" in p.stdout, (p.stdout, p.stderr)
+    err = (tmp_path / "err.txt").read_text()
+    assert re.fullmatch(r"trivsel: error: (job \w+ [\d_]+|Snakemake) failed: no space left on the device of "
+                        + re.escape(repr(str(tmp_path / "mnt" / "b")))
+                        + r"; free some and run the same command again to resume\n", err), err
+    assert ".trivsel-tmp-" not in p.stdout
+    assert (tmp_path / "before.txt").read_text() == (tmp_path / "after.txt").read_text()
+    assert "rerun rc=0" in p.stdout, (p.stdout, (tmp_path / "err2.txt").read_text())

@@ -1064,12 +1064,19 @@ def _follow(proc, out, show):
         sys.stderr.write("\n")
     if proc.wait() == 0:
         return done, None
+    # a full disk leaves a job's log empty, and Snakemake cannot record its jobs
+    full_disk = (f"no space left on the device of {str(out)!r}; free some and run the same command again to resume"
+                 if any("No space left on device" in x for x in tail) else None)
     if rule is not None:
         where = f" (its log: {out / log})" if log else ""
         text, bad_input = _job_message(out / log) if log else ("no log", False)
         item = f" {Path(log).stem}" if log and Path(log).parent.name == rule else ""  # logs/RULE/ITEM.log
+        if not bad_input and full_disk:
+            return done, JobFailed(f"job {rule}{item} failed: {full_disk}")
         return done, JobFailed(f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log",
                                2 if bad_input else 1)
+    if full_disk:
+        return done, JobFailed(f"Snakemake failed: {full_disk}")
     errors = [x.strip() for x in tail if "error" in x.lower() and x.strip()]
     last = errors[-1] if errors else next((x.strip() for x in reversed(tail) if x.strip()), "no output")
     return done, JobFailed(f"Snakemake failed (exit status {proc.returncode}): {last}")
