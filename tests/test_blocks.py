@@ -587,3 +587,31 @@ def test_the_blocks_command_of_a_memory_refusal_does_the_job(tmp_path, capsys, m
     assert main(cmd[1:]) == 0
     summary = json.loads((tmp_path / "o" / "summary.json").read_text())
     assert summary["E_inf"] <= 0.02 + 1e-12, summary
+
+
+@pytest.mark.slurm
+def test_slurm_failing_job_gives_its_own_message(tmp_path, slurm):
+    """On SLURM, a block job that refuses its input (a value changed in place after the run's
+    set-up, as in the hostile test of a local run) ends the run with that job's own line and
+    exit status 2, not only the job's SLURM state: a rerun would not mend it."""
+    import os
+    from pathlib import Path
+
+    from trivsel.blocks import write_config
+
+    v = np.fromfunction(lambda i, j, k: np.sin(i) + j * k / 10.0, (9, 9, 9))
+    src = tmp_path / "nan.npy"
+    np.save(src, v)
+    write_config(tmp_path / "o", {"input": str(src), "block": 4, "tol_inf": 0.05})
+    st = os.stat(src)
+    v[6, 6, 6] = np.nan  # inside block 1_1_1 only
+    np.save(src, v)
+    os.utime(src, ns=(st.st_atime_ns, st.st_mtime_ns))
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", str(src), "--block", "4", "--tol-inf", "0.05",
+                        "--out", str(tmp_path / "o"), "--", "--executor", "slurm", "--workflow-profile", str(profile),
+                        "--slurm-init-seconds-before-status-checks", "5", "--retries", "0"],
+                       capture_output=True, text=True, timeout=600)
+    assert r.returncode == 2, r.stderr
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(
+        "trivsel: error: job blocks_0 failed: block 1_1_1: non-finite value nan at grid index (6, 6, 6)"), r.stderr

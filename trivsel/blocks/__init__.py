@@ -900,11 +900,13 @@ STOP_SECONDS = 30
 class JobFailed(Exception):
     """A blocked run that ended without its results: a job failed, or Snakemake did.  The
     message is one line (the failing job's own message and where its log is); ``status``
-    is the exit status for it: 2 when the job refused its input, else 1."""
+    is the exit status for it: 2 when the job refused its input, else 1; ``own``: whether the
+    message is the job's own (from its log), which says more than a cluster's job state."""
 
-    def __init__(self, message, status=1):
+    def __init__(self, message, status=1, *, own=False):
         super().__init__(message)
         self.status = status
+        self.own = own
 
 
 def check_cores(cores):
@@ -1019,7 +1021,7 @@ def _remove_run_temporaries(out):
 
 _STEPS = re.compile(r"^(\d+) of (\d+) steps \(\d+%\) done")
 _ERROR_RULE = re.compile(r"^Error in rule (\w+):")
-_LOG = re.compile(r"^\s+log: (\S+)")
+_LOG = re.compile(r"^\s+log: ([^\s,]+)")  # on a cluster the scheduler's log follows, after a comma
 
 
 def _job_message(log):
@@ -1073,8 +1075,9 @@ def _follow(proc, out, show):
         item = f" {Path(log).stem}" if log and Path(log).parent.name == rule else ""  # logs/RULE/ITEM.log
         if not bad_input and full_disk:
             return done, JobFailed(f"job {rule}{item} failed: {full_disk}")
+        own = bool(log) and text not in ("its log is missing", "its log is empty")
         return done, JobFailed(f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log",
-                               2 if bad_input else 1)
+                               2 if bad_input else 1, own=own)
     if full_disk:
         return done, JobFailed(f"Snakemake failed: {full_disk}")
     errors = [x.strip() for x in tail if "error" in x.lower() and x.strip()]
@@ -1203,7 +1206,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 failure = JobFailed(f"Snakemake ended without writing {', '.join(missing)} in {str(out)!r} "
                                     "(its arguments after '--' may have limited the run)")
         if failure is not None and on_slurm:
-            failure = _slurm_failure(prefix, started, out) or failure
+            failure = _slurm_failure(prefix, started, out, failure)
         if failure is not None:
             raise failure
         return done
@@ -1211,13 +1214,18 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
         os.close(lock)
 
 
-def _slurm_failure(prefix, since, out):
-    """The first SLURM job named ``prefix_*`` submitted since ``since`` that ended without
-    success, as a :class:`JobFailed` in one line (its state and log), or None."""
+def _slurm_failure(prefix, since, out, failure):
+    """The run's ``failure`` as SLURM saw it: the first SLURM job named ``prefix_*`` submitted
+    since ``since`` that ended without success, as a :class:`JobFailed` in one line (its
+    state and log); but ``failure`` itself when no job ended so, or when the job merely FAILED
+    (its command's exit status) and ``failure`` is that job's own message (bad input, say,
+    which a rerun would not mend)."""
     failed = slurm.failed_jobs(prefix, since)
     if not failed:
-        return None
+        return failure
     job, state, comment = failed[0]
+    if state.split(" ")[0] == "FAILED" and failure.own:
+        return failure
     logs = sorted((Path(out) / ".snakemake" / "slurm_logs").rglob(f"{job}.log"))
     return JobFailed(f"SLURM job {job}{f' ({comment})' if comment else ''} ended {state}"
                      f"{f', log {logs[0]}' if logs else ''}"
