@@ -10,7 +10,9 @@ Inputs, from real volumes that ship in the nilearn and dipy wheels (loaded as
 * ``<volume>/vtu``: the same points and their Delaunay tetrahedra written to a ``.vtu`` and
   read back with ``trivsel.load`` (a tetrahedral mesh: its cells are its domain);
 * ``icbm152/mask``: a non-convex mesh, the Kuhn split of the cells of the ICBM152 crop whose
-  eight voxels are all above 30 % of its maximum (the brain's tissue), with the voxel values.
+  eight voxels are all above 30 % of its maximum (the brain's tissue), with the voxel values;
+* ``<volume>/shell`` (``--shell``): a non-convex mesh whose boundary is curved and rough, as an
+  FEM mesh of a curved part has (:func:`shell_mesh`).
 
 For each input and kept fraction, VTK (``vtkUnstructuredGridQuadricDecimation`` on the same
 tetrahedra) runs as in ``bench_realdata.py``: every weight of the value in its quadric is
@@ -36,6 +38,7 @@ difference) and its validity (:func:`trivsel.decimation.tetmesh.check_mesh_keeps
     python benchmarks/bench_scattered.py                          # 20k points, 3 volumes (about 20 min)
     python benchmarks/bench_scattered.py --points 100000 --fractions 0.05 --no-mask
     python benchmarks/bench_scattered.py --points 1000000 --fractions 0.05 --trivsel-only --no-vtu --no-mask
+    python benchmarks/bench_scattered.py --points --no-mask --shell --volumes statmap icbm152
 """
 
 from __future__ import annotations
@@ -104,6 +107,29 @@ def brain_mask_mesh(grid, level=0.3):
     remap = np.full(grid.n_points, -1)
     remap[used] = np.arange(len(used))
     d = scattered(grid.points[used], grid.values[used], name="mask")
+    d.tets = remap[tets]
+    return d
+
+
+def shell_mesh(grid, n=25000, alpha=6.0, seed=7):
+    """A non-convex mesh with a curved, rough boundary (as an FEM mesh of a curved part has): VTK's
+    alpha-shape Delaunay tetrahedra (``delaunay_3d(alpha=...)``) of ``n`` random points in a thick
+    spherical shell of the volume's box (radii 0.45-0.95 of the half-box), with the volume's
+    values trilinearly interpolated; the points no tetrahedron uses are left out."""
+    import pyvista as pv
+
+    from trivsel.data import scattered
+
+    lo = np.asarray(grid.origin, float)
+    hi = lo + np.asarray(grid.spacing) * (np.asarray(grid.shape) - 1)
+    p = np.random.default_rng(seed).uniform(lo, hi, (3 * n, 3))
+    r = np.linalg.norm((p - (lo + hi) / 2) / (hi - lo) * 2, axis=1)
+    p = p[(r > 0.45) & (r < 0.95)][:n]
+    tets = pv.PolyData(p).delaunay_3d(alpha=alpha).cells_dict[pv.CellType.TETRA]
+    used = np.unique(tets)
+    remap = np.full(len(p), -1)
+    remap[used] = np.arange(len(used))
+    d = scattered(p[used], trilinear(grid, p[used]), name="shell")
     d.tets = remap[tets]
     return d
 
@@ -184,11 +210,12 @@ def measure(label, data, fraction, repeats, say, folder):
         r = trivsel.reduce(data, count=K, method="decimate", values=["data", "fit"])
         runs.append(time.perf_counter() - t0)
     s = r.snapshots[-1]
-    before = start_mesh(data)[0]
+    before, _, boundary = start_mesh(data)
     check_mesh_keeps_domain(data.points, before, s.tets)
     v0 = mesh_volume(data.points, before)
     proc = processes(data, K, vtk, repeats, folder)
-    return {"input": label, "fraction": fraction, "N": data.n_points, "K": K,
+    return {"input": label, "fraction": fraction, "N": data.n_points, "K": K, "trivsel_K": s.n_selected,
+            "boundary_vertices": int(len(np.unique(boundary))),
             "process_s_over_vtk": proc["trivsel"][0] / proc["vtk"][0],
             "trivsel_process_s": proc["trivsel"][0], "vtk_process_s": proc["vtk"][0],
             "trivsel_GB": proc["trivsel"][1], "vtk_GB": proc["vtk"][1],
@@ -208,11 +235,14 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--volumes", nargs="+", default=["icbm152", "statmap", "aniso"])
-    ap.add_argument("--points", nargs="+", type=int, default=[20000])
+    ap.add_argument("--points", nargs="*", type=int, default=[20000], help="scattered samples of each volume "
+                    "(none: --points with no value)")
     ap.add_argument("--fractions", nargs="+", type=float, default=[0.1, 0.05])
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--no-mask", action="store_true", help="skip the non-convex brain-mask mesh")
     ap.add_argument("--no-vtu", action="store_true", help="skip the .vtu meshes")
+    ap.add_argument("--shell", action="store_true",
+                    help="also a mesh with a curved, rough boundary per volume (shell_mesh)")
     ap.add_argument("--trivsel-only", action="store_true",
                     help="time one trivsel process per input and fraction (seconds, peak GB), no VTK")
     a = ap.parse_args(argv)
@@ -235,6 +265,8 @@ def main(argv=None):
                     inputs.append((f"{name}/vtu {n}", as_vtu(d, tmp)))
             if name == "icbm152" and not a.no_mask:
                 inputs.append((f"{name}/mask", brain_mask_mesh(grid)))
+            if a.shell:
+                inputs.append((f"{name}/shell", shell_mesh(grid)))
             for label, d in inputs:
                 for fr in a.fractions:
                     say(f"{label}, {fr:g} ...")
@@ -246,7 +278,7 @@ def main(argv=None):
                     else:
                         rows.append(measure(label, d, fr, a.repeats, say, tmp))
     cols = (["input", "fraction", "N", "trivsel_process_s", "trivsel_GB"] if a.trivsel_only else
-            ["input", "fraction", "N", "K", "fit_rms_over_vtk", "fit_rms_over_vtk_refit", "inf_over_vtk",
+            ["input", "fraction", "N", "K", "trivsel_K", "boundary_vertices", "fit_rms_over_vtk", "fit_rms_over_vtk_refit", "inf_over_vtk",
              "process_s_over_vtk", "trivsel_GB", "vtk_GB", "inproc_s_over_vtk", "volume_change", "vtk_outside"])
     print("| " + " | ".join(cols) + " |")
     print("|" + "---|" * len(cols))
