@@ -1025,16 +1025,17 @@ _LOG = re.compile(r"^\s+log: ([^\s,]+)")  # on a cluster the scheduler's log fol
 
 
 def _job_message(log):
-    """A failed job's own one-line message from its log and whether it was bad input: its
-    ``trivsel: error:`` line (True), else the last line (a traceback's exception)."""
+    """``(text, bad_input, own)``: a failed job's one-line message from its log, whether it was
+    bad input, and whether the log said anything: its ``trivsel: error:`` line (bad input),
+    else the last line (a traceback's exception), else why there is none (not its own)."""
     try:
         lines = [x.strip() for x in Path(log).read_text(errors="replace").splitlines() if x.strip()]
     except OSError:
-        return "its log is missing", False
+        return "its log is missing", False, False
     for line in reversed(lines):
         if line.startswith("trivsel: error: "):
-            return line[len("trivsel: error: "):], True
-    return (lines[-1] if lines else "its log is empty"), False
+            return line[len("trivsel: error: "):], True, True
+    return (lines[-1], False, True) if lines else ("its log is empty", False, False)
 
 
 def _follow(proc, out, show):
@@ -1071,11 +1072,10 @@ def _follow(proc, out, show):
                  if any("No space left on device" in x for x in tail) else None)
     if rule is not None:
         where = f" (its log: {out / log})" if log else ""
-        text, bad_input = _job_message(out / log) if log else ("no log", False)
+        text, bad_input, own = _job_message(out / log) if log else ("no log", False, False)
         item = f" {Path(log).stem}" if log and Path(log).parent.name == rule else ""  # logs/RULE/ITEM.log
         if not bad_input and full_disk:
             return done, JobFailed(f"job {rule}{item} failed: {full_disk}")
-        own = bool(log) and text not in ("its log is missing", "its log is empty")
         return done, JobFailed(f"job {rule}{item} failed: {text}{where}; --verbose shows Snakemake's log",
                                2 if bad_input else 1, own=own)
     if full_disk:
