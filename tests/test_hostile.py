@@ -67,6 +67,12 @@ def _zarr_store(p):
     convert(p.with_suffix(".npy"), p)
 
 
+def GRID_NPY(tmp: Path):
+    """A 9^3 grid of smooth values in an ``.npy`` file, as the input of a run."""
+    g = np.indices((9, 9, 9)).astype(float)
+    return [_write(tmp, "grid9.npy", lambda p: np.save(p, np.sin(g[0] / 3) * g[1] + g[2] ** 2))]
+
+
 def _cases(tmp: Path):
     """(name, argv, expected exit status, fragments of the message: a distinctive phrase and the bad value)."""
     p, f = _cloud()
@@ -225,6 +231,22 @@ def _cases(tmp: Path):
                                                       str(tmp)], 2, "Snakemake's --directory cannot be passed"),
         ("blocks: Snakemake's --cores after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--cores=0"], 2,
          "use -c before '--'"),
+        ("decimate --block with --tol-rms", ["reduce", *GRID_NPY(tmp), "--block", "4", "--tol-rms", "0.1", "--out", out],
+         2, ("option block stops at a count, a fraction or tol_inf, not at --tol-rms",)),
+        ("decimate --block with two fractions", ["reduce", *GRID_NPY(tmp), "--block", "4", "--fractions", "0.1", "0.2",
+                                                 "--out", out], 2, ("option block takes one count or fraction",)),
+        ("decimate --block, criterion max", ["reduce", *GRID_NPY(tmp), "--block", "4", "--criterion", "max",
+                                             "--count", "50", "--out", out], 2, ("not criterion 'max'",)),
+        ("decimate --block, candidates interior", ["reduce", *GRID_NPY(tmp), "--block", "4", "--candidates",
+                                                   "interior", "--count", "50", "--out", out], 2,
+         ("not candidates 'interior'",)),
+        ("decimate --block on scattered points", ["reduce", _write(tmp, "bl.npz", _npz(points=p, values=f)), "--block",
+                                                  "4", "--count", "20", "--out", out], 2,
+         ("option block applies to grids",)),
+        ("decimate --block -3", ["reduce", *GRID_NPY(tmp), "--block", "-3", "--count", "50", "--out", out], 2,
+         ("block must be", "-3")),
+        ("greedy --block", ["reduce", *GRID_NPY(tmp), "--method", "greedy", "--block", "4", "--count", "50", "--out",
+                            out], 2, ("option block (--block) applies to method decimate only, not to greedy",)),
         ("compare: missing table", ["compare", str(tmp / "no.csv"), existing], 2, ("table", "no.csv' does not exist")),
         ("compare: a folder", ["compare", str(tmp), existing], 2, (f"table '{tmp}' is not a file",)),
         ("compare: empty table", ["compare", _write(tmp, "e.csv", _text("")), existing], 2,

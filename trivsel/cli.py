@@ -183,8 +183,8 @@ class _Progress:
         moved = done if total >= self.start else self.start - done  # points inserted, or removed
         rate = moved / seconds if seconds > 0 else 0.0
         bar = "#" * int(round(self.width * frac))
-        text = (f"[{bar:<{self.width}}] {counts}  E_rms {e_rms:.4g}  E_inf {e_inf:.4g}  "
-                f"{rate:.0f} points/s")
+        errors = f"  E_rms {e_rms:.4g}  E_inf {e_inf:.4g}" if e_rms == e_rms else ""  # NaN: not known yet
+        text = f"[{bar:<{self.width}}] {counts}{errors}  {rate:.0f} points/s"
         self.stream.write("\r" + text + " " * max(self.length - len(text), 0))
         self.stream.flush()
         self.open, self.length = True, len(text)
@@ -316,6 +316,19 @@ def _blocks_hint(a, chosen, available):
             ["--volume", str(a.volume)] if a.volume is not None else [])
     else:
         source = ["--function", str(a.function), "--n", str(a.n)]
+    if chosen == "decimate":  # decimate itself in blocks, in this process, where one count or fraction fits
+        block = _decimate_block_for_memory(a, source, available)
+        if block is not None:
+            argv, skip = [], False
+            for x in a.argv:  # the same command, its --block replaced
+                if not skip and not x.startswith("--block="):
+                    if x == "--block":
+                        skip = True
+                        continue
+                    argv.append(x)
+                else:
+                    skip = False
+            return "in blocks of bounded memory: " + shlex.join(["trivsel", *argv, "--block", str(block)])
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
     method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
     tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"
@@ -328,6 +341,28 @@ def _blocks_hint(a, chosen, available):
         notes.append(f"they run {' or '.join(able)}")
     return ("in blocks of bounded memory: " + shlex.join(cmd)
             + (f" ({'; '.join(notes)})" if notes else ""))
+
+
+def _decimate_block_for_memory(a, source, available):
+    """The largest ``--block`` (128 down to 16) with which ``decimate`` fits in ``available``
+    bytes on the grid of ``source``, or None (a stop that blocks do not take, or too large
+    even in blocks)."""
+    import math
+
+    from .io.regions import open_volume
+    from .methods.decimate import memory
+    from .options import Options
+
+    if a.tol_rms is not None or (a.count is not None) + len(a.fractions or ()) > 1:
+        return None
+    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
+           else open_volume(function=a.function, n=a.n))
+    grid = type("Grid", (), {"n_points": math.prod(vol.shape), "is_grid": True, "tets": None})
+    for block in (128, 96, 64, 48, 32, 16):
+        opts = Options(method="decimate", block=block, values=tuple(a.values or ("data",)))
+        if sum(b for b, _ in memory(grid, opts)) <= available:
+            return block
+    return None
 
 
 def _unmet_tolerance(errors, *, tol_rms=None, tol_inf=None):
@@ -504,6 +539,7 @@ def main(argv=None):
             passed = argv[argv.index("--") + 1:]
             argv = argv[:argv.index("--")]
         a = build_parser().parse_args(argv)  # inside: building the parser imports numpy
+        a.argv = argv
         if a.command == "reduce":
             return _cmd_reduce(a)
         if a.command == "compile":

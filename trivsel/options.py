@@ -147,6 +147,12 @@ class Options:
         "the head of the queue; nearer the stop every changed vertex is costed again at once. False: that strict "
         "greedy order throughout (slower; the errors at the stop differ by a few percent either way)",
         kind="bool", tag="lazy", methods=("decimate",))
+    block: int = _option(
+        0, "decimate a grid in blocks of this many grid intervals per axis (0: in one piece), one "
+        "block or region in memory at a time: one cost threshold across the blocks, then the seams freed region "
+        "by region (docs/methods.md), for about 100 bytes per point besides, where one piece takes 1000. One "
+        "count, fraction or tol_inf; not tol_rms, criterion 'max' or candidates 'interior'",
+        kind="int", minimum=0, tag="block", methods=("decimate",))
     boundary_flips: bool | None = _option(
         None, "also flip an edge between two coplanar hull faces to the other diagonal of their "
         "quadrilateral (2-2 flip), so that the boundary's triangulation adapts too",

@@ -371,13 +371,14 @@ class Decimation:
     def sse(self):
         return float(self.S.acc[0])
 
-    def run(self, count, sse_max=INF):
+    def run(self, count, sse_max=INF, key_max=INF):
         """Collapse to ``count`` vertices; returns 0 (reached), 1 (no valid collapse left)
-        or 2 (the next collapse would exceed ``sse_max``)."""
+        or 2 (the next collapse would take the squared-residual sum above ``sse_max``, or
+        has a key, its cost, above ``key_max``)."""
         if self.released:
             raise RuntimeError("this decimation's queue was released: no collapse can follow")
         while True:
-            code = int(self._k.run(self.S, int(count), float(sse_max), self.tol_inf))
+            code = int(self._k.run(self.S, int(count), float(sse_max), float(key_max), self.tol_inf))
             if code != 3:
                 return code
             self._compact()

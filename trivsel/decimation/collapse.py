@@ -451,10 +451,11 @@ def _init(S, tol_inf):
 
 
 @njit(cache=True, _nrt=False)
-def _run(S, stop_count, sse_max, tol_inf):
+def _run(S, stop_count, sse_max, key_max, tol_inf):
     """Collapse until ``stop_count`` vertices remain (0), the cheapest collapse would take the
-    squared-residual sum above ``sse_max`` (2), or no valid collapse is left (1).  With lazy
-    updates, a marked vertex at the head of the queue is re-evaluated before anything else."""
+    squared-residual sum above ``sse_max`` or has a key above ``key_max`` (2), or no valid
+    collapse is left (1).  With lazy updates, a marked vertex at the head of the queue is
+    re-evaluated before anything else."""
     sc, aff, mark = S.sc, S.aff, S.mark
     while S.ctr[C_NV] > stop_count:
         if S.ctr[C_HN] == 0:
@@ -466,7 +467,7 @@ def _run(S, stop_count, sse_max, tol_inf):
             _queue(S, v, key, x, d, delta)
             continue
         w = S.htgt[v]
-        if S.acc[0] + S.hsse[v] > sse_max:
+        if S.acc[0] + S.hsse[v] > sse_max or S.hkey[v] > key_max:
             return 2
         if S.ctr[C_PTOP] + 4 * (S.deg[w] + S.deg[v]) + 16 > S.cpool.shape[0]:
             # w's corners may move (twice, from a small segment) and the pool lacks the room
@@ -565,6 +566,6 @@ def aot_exports(state_type):
 
     f8, i8 = nt.float64, nt.int64
     return {"init": (_init, nt.none(state_type, f8)),
-            "run": (_run, i8(state_type, i8, f8, f8)),
+            "run": (_run, i8(state_type, i8, f8, f8, f8)),
             "flush": (_flush, nt.none(state_type, f8)),
             "weights": (_weights, nt.Tuple((nt.int64[:, ::1], nt.float64[:, ::1]))(state_type))}

@@ -33,6 +33,9 @@ PRESCRIBED_BOUNDARY = False
 #: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
 BYTES_PER_POINT = 1000
 FIT_BYTES_PER_POINT = 150
+#: With ``block``, bytes per point of the whole volume besides one block's or region's decimation:
+#: the values, each point's tetrahedron and vertex flag, its grid coordinates in a pass, the mesh.
+BLOCKED_BYTES_PER_POINT = 100
 
 
 def check_options(options):
@@ -52,7 +55,12 @@ def memory(data, options):
     from ..resources import DELAUNAY_BYTES_PER_POINT
 
     N = data.n_points
-    per_point = BYTES_PER_POINT + (FIT_BYTES_PER_POINT if "fit" in options.values else 0)
+    fit = FIT_BYTES_PER_POINT if "fit" in options.values else 0
+    if options.block and data.is_grid:  # one block or region at a time, and the whole as owners
+        piece = min(float(2 * options.block + 1) ** 3, float(N))
+        return [(BLOCKED_BYTES_PER_POINT * float(N) + BYTES_PER_POINT * piece + fit * float(N),
+                 f"decimating {N} points in blocks of {options.block}")]
+    per_point = BYTES_PER_POINT + fit
     need = [(per_point * float(N), f"decimating {N} points")]
     if not data.is_grid and data.tets is None:
         need.append((DELAUNAY_BYTES_PER_POINT * float(N), f"the Delaunay tetrahedra of {N} scattered points"))
@@ -74,6 +82,7 @@ def run(problem):
     data, opts, stop = problem.data, problem.options, problem.stop
     if problem.boundary is not None:
         raise InputError("method 'decimate' cannot take a prescribed boundary; use 'greedy' or 'paper'")
+    check_blocks(data, opts, stop)
     N = data.n_points
     start = None
     if data.is_grid:
@@ -95,6 +104,8 @@ def run(problem):
     if not targets:  # tolerance only: as far down as the tolerance allows
         targets = [n_fixed]
     logging.getLogger("trivsel").info("decimating %d points down to %d", N, targets[0])
+    if opts.block:
+        return _run_in_blocks(problem, interior, targets)
     snaps, selected, stats, t_errors = reduce_by_collapse(
         data, targets, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], candidates=opts.candidates,
         key="max" if opts.criterion == "max" else "sse",
@@ -115,3 +126,38 @@ def run(problem):
     order = selected[~fixed[selected]]
     return MethodRun(snapshots=snaps, selected=snaps[-1].selected, curvature=None, order=order,
                      timings=timings, stats=stats, notes=notes)
+
+
+def check_blocks(data, options, stop):
+    """What ``block`` takes: a grid and one stop (a count or fraction, or tol_inf), ordered by
+    the squared error over every point (:mod:`trivsel.decimation.blocked`)."""
+    if not options.block:
+        return
+    given = [f"--{k.replace('_', '-')}" for k, v in (("tol_rms", stop["tol_rms"]),) if v is not None]
+    if not data.is_grid:
+        raise InputError("option block applies to grids; scattered points and meshes are decimated in one piece")
+    if given:
+        raise InputError(f"option block stops at a count, a fraction or tol_inf, not at {given[0]}")
+    if options.criterion == "max" or options.candidates == "interior":
+        what = "criterion 'max'" if options.criterion == "max" else "candidates 'interior'"
+        raise InputError(f"option block orders collapses by criterion 'sse' over all candidates, not {what}")
+    if (stop["count"] is not None) + len(stop["fractions"] or ()) > 1:
+        raise InputError("option block takes one count or fraction, got several")
+
+
+def _run_in_blocks(problem, interior, targets):
+    """The run in blocks (:func:`trivsel.decimation.blocked.reduce_in_blocks`)."""
+    from ..decimation.blocked import reduce_in_blocks
+
+    data, opts, stop = problem.data, problem.options, problem.stop
+    N = data.n_points
+    target = targets[0] if (stop["fractions"] or stop["count"] is not None) else None
+    snaps, selected, stats, t_errors = reduce_in_blocks(
+        data, target, block=opts.block, tol_inf=stop["tol_inf"], values=opts.values, interior=interior,
+        progress=problem.progress, t_start=problem.t_start)
+    requested_fractions(snaps, stop["fractions"], N)
+    notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
+    t_total = time.perf_counter() - problem.t_start
+    timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
+    return MethodRun(snapshots=snaps, selected=selected, curvature=None, order=selected, timings=timings,
+                     stats=stats, notes=notes)

@@ -1,0 +1,382 @@
+r"""``method="decimate"`` in blocks: one cost threshold cut across the blocks' recorded
+collapse sequences, then the seams freed in regions of whole vertex stars, then a quota step.
+
+Bottom-up decimation (:mod:`trivsel.decimation`) starts from every grid point, so it cannot
+take the prescribed faces that the inserting methods take in blocks.  Here the box is cut
+into blocks that share their faces (the *seams*)::
+
+    costs    every block is decimated on its own, its seam points locked, and its
+             sequence of collapse costs recorded (Hoppe's progressive meshes: the
+             collapses in the order made, each with its cost)
+    cut      one cost threshold tau for all the blocks, from the sequences' running
+             maxima: the blocks' points left at tau, and the seams' at the blocks'
+             density, come to OVERSHOOT times the count asked for
+    blocks   every block again, stopped at its first collapse that costs more than tau:
+             the prefix of its recorded sequence (the runs are deterministic: the same
+             lazy-then-exact queue, switched at the same count)
+    regions  a grid of regions of 2 x 2 x 2 blocks, cut through the blocks' middles, so
+             that the seams run inside them.  Every vertex is a candidate; it is *free*
+             in its region when every tetrahedron around it has its candidates in that
+             region only.  A region's tetrahedra are the stars of its free vertices: two
+             regions never share a tetrahedron, and what one changes the others never
+             see.  Its other vertices are locked, and it is decimated (exact queue) down
+             to tau.  The vertices near a region's cut are not free; two more grids, cut
+             elsewhere, free them
+    quota    the vertices still over the count are taken, cheapest first, from the
+             regions of one more grid, each in proportion to its free vertices
+
+      blocks (pass 1)      regions (cuts through the blocks' middles)
+      +-----+-----+            :     :
+      |     |     |        ....:.....:....     o free: its whole star in the region
+      +-----+-----+            :  o  :         x locked: a tetrahedron around it has a
+      |     |     |        ....:.....:....       candidate in another region
+      +-----+-----+            :  x  :
+
+Every collapse is one of :mod:`trivsel.decimation` (exact integer predicates, the cost
+the exact change of the squared residuals over the original points, section 5's eq. 19),
+so the merged mesh is a conforming tetrahedralisation of the box whose vertices are data
+points.  Each block reads only its block, each region only its region's points and the
+tetrahedra of the blocks it overlaps; the whole volume is held here only as the owner of
+each point (one integer) and the mesh.  Blocks must be large against the tetrahedra near
+the stop: with blocks of 8 intervals and tetrahedra as large, few vertices are free in any
+region, and the error grows (``docs/notes``).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from ..selection import count_for_fraction
+from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
+
+__all__ = ["block_cuts", "decimate_in_blocks", "point_weights", "reduce_in_blocks"]
+
+#: The edge of a region of the passes after the blocks, in blocks
+REGION = 2
+#: The shifts of the seam passes' region grids, in blocks: their cuts run through the blocks' middles,
+#: away from the seams, and cross each other's only at lines
+SEAM_SHIFTS = (0.5, 1.5, 0.25)
+#: The shifts of the quota passes' region grids, in blocks
+QUOTA_SHIFTS = (0.0, 1.0, 0.5, 1.5)
+#: The cut aims at this many times the count asked for, so that the region passes end above it and the
+#: quota step takes the rest (the regions free every vertex, and remove more than the blocks' sequences show)
+OVERSHOOT = 1.2
+
+def block_cuts(n, block):
+    """The grid indices where blocks of ``block`` intervals meet along an axis of ``n``
+    points: ``0, block, 2 block, ..., n - 1`` (a last block shorter than half a block is
+    joined to the one before)."""
+    cuts = list(range(0, n - 1, block)) + [n - 1]
+    if len(cuts) > 2 and cuts[-1] - cuts[-2] < block // 2:
+        del cuts[-2]
+    return np.asarray(cuts, np.int64)
+
+
+def _block_state(volume, lo, hi, seam_axes):
+    """The decimation state of the block ``lo..hi`` (inclusive) of ``volume``, its seam
+    points locked, and the global point index of each of its points."""
+    shape = tuple(int(h - l + 1) for l, h in zip(lo, hi))
+    ijk = np.indices(shape).reshape(3, -1).T
+    n = np.asarray(volume.shape, np.int64)
+    g = ijk + np.asarray(lo, np.int64)
+    gid = (g[:, 0] * n[1] + g[:, 1]) * n[2] + g[:, 2]
+    vals = np.asarray(volume[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1], np.float64).ravel()
+    S = new_state(ijk, shape, vals, lock="box", key="sse", lazy=True)
+    seam = _on_seam(g, seam_axes)
+    S.lock[seam] |= LOCK_ALL
+    return S, gid, seam
+
+
+def _on_seam(g, seam_axes):
+    """Whether grid points ``g`` lie on a seam (``seam_axes[a]``: the cut indices of axis a
+    inside the box)."""
+    on = np.zeros(len(g), bool)
+    for a in range(3):
+        on |= np.isin(g[:, a], seam_axes[a])
+    return on
+
+
+def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, progress=None):
+    """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
+
+    Stops at ``count`` vertices (or ``fraction`` of the points), approximately: the cost
+    threshold that the blocks' recorded sequences give for it, or where no collapse keeps
+    every residual within ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
+    C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
+    every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
+    threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
+    count after every block and every pass.
+    """
+    vol = np.asarray(volume)
+    n = np.asarray(vol.shape, np.int64)
+    N = int(np.prod(n))
+    cuts = [block_cuts(int(m), int(block)) for m in n]
+    seam_axes = [c[1:-1] for c in cuts]
+    blocks = [(i, j, k) for i in range(len(cuts[0]) - 1) for j in range(len(cuts[1]) - 1)
+              for k in range(len(cuts[2]) - 1)]
+
+    def bounds(b):
+        return ([int(cuts[a][b[a]]) for a in range(3)], [int(cuts[a][b[a] + 1]) for a in range(3)])
+
+    say = progress or (lambda count: None)
+    if count is None and fraction is None and tol_inf is None:
+        raise ValueError("decimate_in_blocks needs a stop: count, fraction or tol_inf")
+    target = None
+    if count is not None or fraction is not None:
+        target = int(count) if count is not None else count_for_fraction(fraction, N)
+
+    def block_run(b, key_max):
+        """Block b decimated lazily down to its seam points and twice its share of the target, then with exact
+        costs (as :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until
+        the first collapse that costs more than ``key_max``: the same sequence every time."""
+        S, gid, seam = _block_state(vol, *bounds(b), seam_axes)
+        dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
+        share = (~seam).sum() * (target / N if target is not None else 0.0)  # its locked seam points stay
+        if dec.run(int(seam.sum() + EXACT_WITHIN * share), key_max=key_max) == 0:
+            dec.lazy = False
+            dec.run(0, key_max=key_max)
+        return dec, gid, seam
+
+    # pass 1: every block's costs, cheapest first, as running maxima
+    runmax, inner = [], []
+    if target is not None:
+        for b in blocks:
+            dec, gid, seam = block_run(b, INF)
+            keys = dec.S.hkey[dec.removed()]
+            runmax.append(np.maximum.accumulate(keys) if len(keys) else keys)
+            inner.append(int((~seam).sum()))
+    tau = _threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
+
+    # pass 2: every block to tau (the prefix of its sequence)
+    tets, owner, isv = [], np.full(N, -1, np.int64), np.ones(N, bool)
+    base = 0
+    for i, b in enumerate(blocks):
+        dec, gid, seam = block_run(b, tau)
+        if runmax and len(dec.removed()) != int(np.searchsorted(runmax[i], tau, side="right")):
+            raise RuntimeError(f"block {b} did not repeat its recorded collapses")
+        alive = dec.S.alive
+        row = np.cumsum(alive) - 1
+        T = gid[dec.tetrahedra()]
+        inside = np.flatnonzero(~dec.S.isv)
+        owner[gid[inside]] = base + row[dec.S.ptet[inside]]
+        isv[gid[inside]] = False
+        tets.append(T)
+        base += len(T)
+        say(int(isv.sum()))
+    T = np.concatenate(tets)
+    del tets
+    stats = {"blocks": len(blocks), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
+
+    # the seams, region by region: every vertex a candidate, down to tau
+    ijk = np.stack(np.unravel_index(np.arange(N), tuple(n)), axis=1)
+    cand = isv.copy()
+    for shift in SEAM_SHIFTS:
+        if not cand.any():
+            break
+        T, owner, isv, cand, st = _region_pass(vol, ijk, T, owner, isv, cand, round(shift * block),
+                                               REGION * int(block), tau, None, tol_inf)
+        stats["seam_passes"].append(st)
+        say(int(isv.sum()))
+    stats["after_seams"] = int(isv.sum())
+    # the quota step: the vertices over the target, taken from every region in proportion
+    for shift in QUOTA_SHIFTS:
+        surplus = int(isv.sum()) - (target if target is not None else int(isv.sum()))
+        if surplus <= 0:
+            break
+        T, owner, isv, _, st = _region_pass(vol, ijk, T, owner, isv, isv.copy(), round(shift * block),
+                                            REGION * int(block), INF, surplus, tol_inf)
+        stats["seam_passes"].append(st)
+        say(int(isv.sum()))
+    stats["vertices"] = int(isv.sum())
+    owner[isv] = -1
+    return {"vertices": np.flatnonzero(isv), "tets": T, "ptet": owner, "tau": float(tau), "stats": stats}
+
+
+def _threshold(runmax, inner, seam_points, target):
+    """The cost threshold tau at which the blocks' points left (their sequences' running
+    maxima cut at tau), plus the seams' points at the blocks' density, come nearest to
+    ``target``; inf without a target."""
+    if target is None:
+        return INF
+    total = sum(inner)
+    cand = np.unique(np.concatenate([r for r in runmax if len(r)] or [np.zeros(0)]))
+    if not len(cand):
+        return INF
+
+    def left(t):
+        kept = total - sum(int(np.searchsorted(r, t, side="right")) for r in runmax)
+        return kept + seam_points * kept / max(total, 1)
+
+    lo, hi = 0, len(cand) - 1  # left() falls as tau grows: the smallest tau with left <= target
+    if left(cand[hi]) > target:
+        return float(cand[hi])
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if left(cand[mid]) <= target:
+            hi = mid
+        else:
+            lo = mid + 1
+    return float(cand[lo])
+
+
+def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf):
+    """Decimate the candidate vertices ``cand`` in the regions of edge ``size`` whose cuts are
+    at ``off + k size``, each down to ``tau`` or, with ``surplus``, by its share of that many vertices:
+    returns the new mesh, owners, vertex flags, the candidates left (not free in any region
+    of this grid) and the pass's counts."""
+    n = np.asarray(vol.shape, np.int64)
+    r3 = (ijk + (size - off % size)) // size  # region index per axis
+    dims = r3.max(axis=0) + 1
+    rid = np.where(cand, (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2], -1)
+    R = rid[T]
+    big = np.iinfo(np.int64).max
+    rmin = np.where(R >= 0, R, big).min(axis=1)
+    rmax = R.max(axis=1)
+    conflict = (rmax >= 0) & (rmin != rmax)
+    blocked = np.zeros(len(isv), bool)
+    blocked[T[conflict].ravel()] = True
+    free = cand & ~blocked
+    has_free = free[T].any(axis=1)
+    treg = np.where(has_free, rmax, -1)
+    order = np.flatnonzero(has_free)
+    order = order[np.argsort(treg[order], kind="stable")]
+    starts = np.flatnonzero(np.r_[True, np.diff(treg[order]) != 0]) if len(order) else np.zeros(0, np.int64)
+    ends = np.r_[starts[1:], len(order)]
+    # the points inside each region's tetrahedra
+    pts = np.flatnonzero(~isv)
+    ptreg = treg[owner[pts]]
+    pts = pts[ptreg >= 0]
+    pts = pts[np.argsort(treg[owner[pts]], kind="stable")]
+    pkeys = treg[owner[pts]]
+    row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
+    for s, e in zip(starts, ends):
+        row_of[order[s:e]] = np.arange(e - s)
+    keep = np.ones(len(T), bool)
+    new_T, new_owner_pts, new_owner_rows = [], [], []
+    isv = isv.copy()
+    removed = 0
+    base = 0
+    if surplus is not None:  # each region's share of the surplus, by its free vertices (largest remainders)
+        nfree = np.bincount(np.searchsorted(treg[order][starts], rid[free]), minlength=len(starts)).astype(float)
+        want = surplus * nfree / max(nfree.sum(), 1.0)
+        quota = np.floor(want).astype(np.int64)
+        quota[np.argsort(quota - want)[: surplus - int(quota.sum())]] += 1
+    for ri, (s, e) in enumerate(zip(starts, ends)):
+        rows = order[s:e]
+        reg = treg[rows[0]]
+        a, z = np.searchsorted(pkeys, reg, side="left"), np.searchsorted(pkeys, reg, side="right")
+        inside = pts[a:z]
+        tg = T[rows]
+        verts = np.unique(tg)
+        local = np.concatenate([verts, inside])
+        # local numbering: vertices first, then the points inside
+        order_local = np.argsort(local)
+        sorted_local = local[order_local]
+        tl = order_local[np.searchsorted(sorted_local, tg)]
+        located = np.full(len(local), -1, np.int64)
+        located[len(verts):] = row_of[owner[inside]]
+        P = ijk[local]
+        St = new_mesh_state(P, tl, np.asarray(vol.reshape(-1)[local], np.float64), located=located, key="sse",
+                            lazy=False)
+        lock = ~free[local]
+        St.lock[lock] |= LOCK_ALL
+        dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
+        dec.run(0 if surplus is None else dec.n_vertices - int(quota[ri]), key_max=tau)
+        rem = dec.removed()
+        removed += len(rem)
+        isv[local[rem]] = False
+        alive_row = np.cumsum(dec.S.alive) - 1
+        nt = local[dec.tetrahedra()]
+        nonv = np.flatnonzero(~dec.S.isv)
+        new_owner_pts.append(local[nonv])
+        new_owner_rows.append(base + alive_row[dec.S.ptet[nonv]])
+        new_T.append(nt)
+        base += len(nt)
+        keep[rows] = False
+    kept_rows = np.cumsum(keep) - 1
+    owner = owner.copy()
+    moved = ~isv & (owner >= 0)
+    owner[moved] = kept_rows[owner[moved]]  # points of unchanged tets: their new rows
+    nkeep = int(keep.sum())
+    T2 = np.concatenate([T[keep]] + new_T) if new_T else T[keep]
+    for p, r in zip(new_owner_pts, new_owner_rows):
+        owner[p] = nkeep + r
+    left = cand & blocked
+    return T2, owner, isv, left, {"offset": off, "regions": len(starts), "free": int(free.sum()),
+                                   "removed": removed, "not_free": int(left.sum())}
+
+
+def point_weights(shape, tets, ptet):
+    """For every point of the grid ``shape``, the 4 vertices of the tetrahedron that holds it
+    (``tets[ptet[p]]``) and its barycentric weights there, from integer determinants (a
+    vertex, ``ptet`` -1: itself with weight 1), as :meth:`Decimation.point_weights` gives them."""
+    N = int(np.prod(shape))
+    verts = np.repeat(np.arange(N, dtype=np.int64)[:, None], 4, axis=1)
+    w = np.zeros((N, 4))
+    w[:, 0] = 1.0
+    inside = np.flatnonzero(ptet >= 0)
+    for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
+        q = np.stack(np.unravel_index(tets[ptet[part]], shape), axis=-1)  # (k, 4, 3)
+        x = np.stack(np.unravel_index(part, shape), axis=-1)
+        lam = np.stack([_det(q[:, 1] - x, q[:, 2] - x, q[:, 3] - x),
+                        _det(x - q[:, 0], q[:, 2] - q[:, 0], q[:, 3] - q[:, 0]),
+                        _det(q[:, 1] - q[:, 0], x - q[:, 0], q[:, 3] - q[:, 0]),
+                        _det(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0], x - q[:, 0])], axis=1)
+        verts[part] = tets[ptet[part]]
+        w[part] = lam / lam.sum(axis=1, keepdims=True)
+    return verts, w
+
+
+def _det(u, v, w):
+    """Row-wise integer ``det[u, v, w]``."""
+    return np.einsum("ij,ij->i", np.cross(u, v), w)
+
+
+def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), interior=None, progress=None,
+                     t_start=None):
+    """The whole run of ``method="decimate"`` with ``block`` for :func:`trivsel.reduce`: grid
+    data decimated by :func:`decimate_in_blocks` to ``target`` points (or, None, to ``tol_inf``).
+    Returns ``(snapshots, selected, stats, seconds)`` as
+    :func:`trivsel.decimation.reduce_by_collapse` does, with one snapshot."""
+    import time
+
+    from ..fitting import fit_vertex_values
+    from ..norms import error_norms
+    from ..result import Snapshot
+
+    t_start = time.perf_counter() if t_start is None else t_start
+    N = data.n_points
+    interior = data.interior_mask() if interior is None else interior
+    vol = np.asarray(data.values, np.float64).reshape(data.shape)
+
+    def say(count):
+        if progress is not None:
+            progress(count, target or 0, float("nan"), float("nan"), time.perf_counter() - t_start)
+
+    say(N)
+    out = decimate_in_blocks(vol, block, count=target, tol_inf=tol_inf, progress=say)
+    te = time.perf_counter()
+    verts, w = point_weights(data.shape, out["tets"], out["ptet"])
+    f = vol.reshape(-1)
+    r = f - np.einsum("ij,ij->i", w, f[verts])
+    fit = None
+    if "fit" in values:
+        fv, fr = fit_vertex_values(verts, w, f, out["vertices"])
+        fit = {"vertices": out["vertices"], "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
+    del verts, w
+    m = len(out["vertices"])
+    shot = Snapshot(fraction=m / N, n_selected=m, selected=out["vertices"], tets=out["tets"], residuals=r,
+                    errors=error_norms(r, interior), seconds=time.perf_counter() - t_start, fit=fit)
+    if progress is not None:
+        progress(m, target or m, shot.errors["E_rms"], shot.errors["E_inf"], time.perf_counter() - t_start)
+    st = out["stats"]
+    if target is not None and m <= target:
+        why = "the count was reached"
+    elif tol_inf is not None:
+        why = "no collapse was left that keeps every residual within tol_inf"
+    else:  # the tetrahedra grew as large as the regions: few of their vertices were free in any
+        why = (f"no more vertices were free in the regions of blocks of {block}: a larger block (or one piece) "
+               "reaches the count")
+    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": why, "blocks": st["blocks"],
+             "cost_threshold": st["tau"], "after_blocks": st["after_blocks"], "after_regions": st["after_seams"]}
+    return [shot], out["vertices"], stats, time.perf_counter() - te
