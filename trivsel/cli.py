@@ -71,8 +71,8 @@ def build_parser():
     r.add_argument("--progress", choices=["auto", "always", "never"], default="auto",
                    help="progress line on stderr: 'auto' shows it only on a terminal (quiet in workflow logs)")
     r.add_argument("--threads", type=int, default=1,
-                   help="threads for the curvature fits, the stage that parallelises (default 1; the result "
-                        "does not depend on it)")
+                   help="threads for the curvature fits, and processes for the blocks and regions of "
+                        "decimate --block (default 1; the result does not depend on it)")
     from .options import add_arguments
 
     add_arguments(r)  # one group per set of methods the options apply to

@@ -96,7 +96,7 @@ def _on_seam(g, seam_axes):
     return on
 
 
-def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, progress=None):
+def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, threads=1, progress=None):
     """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
 
     Stops at ``count`` vertices (or ``fraction`` of the points), approximately: the cost
@@ -105,7 +105,8 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
     every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
     threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
-    count after every block and every pass.
+    count after every block and every pass.  ``threads`` processes decimate blocks, and the
+    regions of a pass, side by side (forked: the same results as one).
     """
     vol = np.asarray(volume)
     n = np.asarray(vol.shape, np.int64)
@@ -125,41 +126,27 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     if count is not None or fraction is not None:
         target = int(count) if count is not None else count_for_fraction(fraction, N)
 
-    def block_run(b, key_max):
-        """Block b decimated lazily down to its seam points and twice its share of the target, then with exact
-        costs (as :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until
-        the first collapse that costs more than ``key_max``: the same sequence every time."""
-        S, gid, seam = _block_state(vol, *bounds(b), seam_axes)
-        dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
-        share = (~seam).sum() * (target / N if target is not None else 0.0)  # its locked seam points stay
-        if dec.run(int(seam.sum() + EXACT_WITHIN * share), key_max=key_max) == 0:
-            dec.lazy = False
-            dec.run(0, key_max=key_max)
-        return dec, gid, seam
+    _SHARED.clear()
+    _SHARED.update(vol=vol, bounds=[bounds(b) for b in blocks], seam_axes=seam_axes, tol_inf=tol_inf,
+                   fraction=0.0 if target is None else target / N)
 
     # pass 1: every block's costs, cheapest first, as running maxima
     runmax, inner = [], []
     if target is not None:
-        for b in blocks:
-            dec, gid, seam = block_run(b, INF)
-            keys = dec.S.hkey[dec.removed()]
+        for keys, n_inner in _map(_block_costs, range(len(blocks)), threads):
             runmax.append(np.maximum.accumulate(keys) if len(keys) else keys)
-            inner.append(int((~seam).sum()))
+            inner.append(n_inner)
     tau = _threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
 
     # pass 2: every block to tau (the prefix of its sequence)
+    _SHARED["tau"] = tau
     tets, owner, isv = [], np.full(N, -1, np.int64), np.ones(N, bool)
     base = 0
-    for i, b in enumerate(blocks):
-        dec, gid, seam = block_run(b, tau)
-        if runmax and len(dec.removed()) != int(np.searchsorted(runmax[i], tau, side="right")):
-            raise RuntimeError(f"block {b} did not repeat its recorded collapses")
-        alive = dec.S.alive
-        row = np.cumsum(alive) - 1
-        T = gid[dec.tetrahedra()]
-        inside = np.flatnonzero(~dec.S.isv)
-        owner[gid[inside]] = base + row[dec.S.ptet[inside]]
-        isv[gid[inside]] = False
+    for i, (T, inside, rows, n_removed) in enumerate(_map(_block_mesh, range(len(blocks)), threads)):
+        if runmax and n_removed != int(np.searchsorted(runmax[i], tau, side="right")):
+            raise RuntimeError(f"block {blocks[i]} did not repeat its recorded collapses")
+        owner[inside] = base + rows
+        isv[inside] = False
         tets.append(T)
         base += len(T)
         say(int(isv.sum()))
@@ -174,7 +161,7 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
         if not cand.any():
             break
         T, owner, isv, cand, st = _region_pass(vol, ijk, T, owner, isv, cand, round(shift * block),
-                                               REGION * int(block), tau, None, tol_inf)
+                                               REGION * int(block), tau, None, tol_inf, threads)
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
     stats["after_seams"] = int(isv.sum())
@@ -184,12 +171,62 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
         if surplus <= 0:
             break
         T, owner, isv, _, st = _region_pass(vol, ijk, T, owner, isv, isv.copy(), round(shift * block),
-                                            REGION * int(block), INF, surplus, tol_inf)
+                                            REGION * int(block), INF, surplus, tol_inf, threads)
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
     stats["vertices"] = int(isv.sum())
     owner[isv] = -1
+    _SHARED.clear()
     return {"vertices": np.flatnonzero(isv), "tets": T, "ptet": owner, "tau": float(tau), "stats": stats}
+
+
+#: What the workers of a run read (set before they fork, so that nothing large is sent to them)
+_SHARED = {}
+
+
+def _map(fn, items, threads):
+    """``fn`` over ``items``, in order: here, or in ``threads`` forked processes that read
+    :data:`_SHARED` as it was when they started."""
+    items = list(items)
+    if threads <= 1 or len(items) <= 1:
+        yield from map(fn, items)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=min(threads, len(items)),
+                             mp_context=multiprocessing.get_context("fork")) as pool:
+        yield from pool.map(fn, items)
+
+
+def _block_run(i, key_max):
+    """Block i decimated lazily down to its seam points and twice its share of the target,
+    then with exact costs (as :func:`trivsel.decimation.reduce_by_collapse` does near its
+    stop), until the first collapse that costs more than ``key_max``: the same sequence
+    every time."""
+    sh = _SHARED
+    S, gid, seam = _block_state(sh["vol"], *sh["bounds"][i], sh["seam_axes"])
+    dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=S)
+    share = (~seam).sum() * sh["fraction"]  # its locked seam points stay
+    if dec.run(int(seam.sum() + EXACT_WITHIN * share), key_max=key_max) == 0:
+        dec.lazy = False
+        dec.run(0, key_max=key_max)
+    return dec, gid, seam
+
+
+def _block_costs(i):
+    """Block i's collapse costs in the order made, and its number of points off the seams."""
+    dec, gid, seam = _block_run(i, INF)
+    return dec.S.hkey[dec.removed()].copy(), int((~seam).sum())
+
+
+def _block_mesh(i):
+    """Block i down to the threshold: its tetrahedra (global point indices), the points inside
+    them with their rows, and the number of collapses."""
+    dec, gid, seam = _block_run(i, _SHARED["tau"])
+    row = np.cumsum(dec.S.alive) - 1
+    inside = np.flatnonzero(~dec.S.isv)
+    return gid[dec.tetrahedra()], gid[inside], row[dec.S.ptet[inside]], len(dec.removed())
 
 
 def _threshold(runmax, inner, seam_points, target):
@@ -219,84 +256,61 @@ def _threshold(runmax, inner, seam_points, target):
     return float(cand[lo])
 
 
-def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf):
+def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf, threads=1):
     """Decimate the candidate vertices ``cand`` in the regions of edge ``size`` whose cuts are
-    at ``off + k size``, each down to ``tau`` or, with ``surplus``, by its share of that many vertices:
-    returns the new mesh, owners, vertex flags, the candidates left (not free in any region
-    of this grid) and the pass's counts."""
-    n = np.asarray(vol.shape, np.int64)
+    at ``off + k size``, each down to ``tau`` or, with ``surplus``, by its share of that many
+    vertices: returns the new mesh, owners, vertex flags, the candidates left (not free in any
+    region of this grid) and the pass's counts."""
     r3 = (ijk + (size - off % size)) // size  # region index per axis
     dims = r3.max(axis=0) + 1
     rid = np.where(cand, (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2], -1)
+    del r3
     R = rid[T]
-    big = np.iinfo(np.int64).max
-    rmin = np.where(R >= 0, R, big).min(axis=1)
+    rmin = np.where(R >= 0, R, np.iinfo(np.int64).max).min(axis=1)
     rmax = R.max(axis=1)
+    del R
     conflict = (rmax >= 0) & (rmin != rmax)
     blocked = np.zeros(len(isv), bool)
     blocked[T[conflict].ravel()] = True
     free = cand & ~blocked
-    has_free = free[T].any(axis=1)
-    treg = np.where(has_free, rmax, -1)
-    order = np.flatnonzero(has_free)
+    treg = np.where(free[T].any(axis=1), rmax, -1)  # the region of a tetrahedron around a free vertex
+    order = np.flatnonzero(treg >= 0)
     order = order[np.argsort(treg[order], kind="stable")]
     starts = np.flatnonzero(np.r_[True, np.diff(treg[order]) != 0]) if len(order) else np.zeros(0, np.int64)
     ends = np.r_[starts[1:], len(order)]
-    # the points inside each region's tetrahedra
+    # the points inside each region's tetrahedra, by region
     pts = np.flatnonzero(~isv)
-    ptreg = treg[owner[pts]]
-    pts = pts[ptreg >= 0]
+    pts = pts[treg[owner[pts]] >= 0]
     pts = pts[np.argsort(treg[owner[pts]], kind="stable")]
     pkeys = treg[owner[pts]]
     row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
     for s, e in zip(starts, ends):
         row_of[order[s:e]] = np.arange(e - s)
-    keep = np.ones(len(T), bool)
-    new_T, new_owner_pts, new_owner_rows = [], [], []
-    isv = isv.copy()
-    removed = 0
-    base = 0
+    quota = None
     if surplus is not None:  # each region's share of the surplus, by its free vertices (largest remainders)
         nfree = np.bincount(np.searchsorted(treg[order][starts], rid[free]), minlength=len(starts)).astype(float)
         want = surplus * nfree / max(nfree.sum(), 1.0)
         quota = np.floor(want).astype(np.int64)
         quota[np.argsort(quota - want)[: surplus - int(quota.sum())]] += 1
-    for ri, (s, e) in enumerate(zip(starts, ends)):
-        rows = order[s:e]
-        reg = treg[rows[0]]
-        a, z = np.searchsorted(pkeys, reg, side="left"), np.searchsorted(pkeys, reg, side="right")
-        inside = pts[a:z]
-        tg = T[rows]
-        verts = np.unique(tg)
-        local = np.concatenate([verts, inside])
-        # local numbering: vertices first, then the points inside
-        order_local = np.argsort(local)
-        sorted_local = local[order_local]
-        tl = order_local[np.searchsorted(sorted_local, tg)]
-        located = np.full(len(local), -1, np.int64)
-        located[len(verts):] = row_of[owner[inside]]
-        P = ijk[local]
-        St = new_mesh_state(P, tl, np.asarray(vol.reshape(-1)[local], np.float64), located=located, key="sse",
-                            lazy=False)
-        lock = ~free[local]
-        St.lock[lock] |= LOCK_ALL
-        dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
-        dec.run(0 if surplus is None else dec.n_vertices - int(quota[ri]), key_max=tau)
-        rem = dec.removed()
+    _SHARED["region"] = dict(vol=vol, ijk=ijk, T=T, owner=owner, free=free, order=order, starts=starts, ends=ends,
+                             treg=treg, pts=pts, pkeys=pkeys, row_of=row_of, quota=quota, tau=tau, tol_inf=tol_inf)
+    keep = np.ones(len(T), bool)
+    new_T, new_owner_pts, new_owner_rows = [], [], []
+    isv = isv.copy()
+    removed = base = 0
+    for ri, (rem, nt, nonv, rows) in enumerate(_map(_region_work, range(len(starts)), threads)):
         removed += len(rem)
-        isv[local[rem]] = False
-        alive_row = np.cumsum(dec.S.alive) - 1
-        nt = local[dec.tetrahedra()]
-        nonv = np.flatnonzero(~dec.S.isv)
-        new_owner_pts.append(local[nonv])
-        new_owner_rows.append(base + alive_row[dec.S.ptet[nonv]])
+        isv[rem] = False
+        new_owner_pts.append(nonv)
+        new_owner_rows.append(base + rows)
         new_T.append(nt)
         base += len(nt)
-        keep[rows] = False
+        keep[order[starts[ri]:ends[ri]]] = False
+    del _SHARED["region"]
     kept_rows = np.cumsum(keep) - 1
     owner = owner.copy()
     moved = ~isv & (owner >= 0)
-    owner[moved] = kept_rows[owner[moved]]  # points of unchanged tets: their new rows
+    owner[moved] = kept_rows[owner[moved]]  # points of unchanged tetrahedra: their new rows
     nkeep = int(keep.sum())
     T2 = np.concatenate([T[keep]] + new_T) if new_T else T[keep]
     for p, r in zip(new_owner_pts, new_owner_rows):
@@ -304,6 +318,34 @@ def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf
     left = cand & blocked
     return T2, owner, isv, left, {"offset": off, "regions": len(starts), "free": int(free.sum()),
                                    "removed": removed, "not_free": int(left.sum())}
+
+
+def _region_work(ri):
+    """Region ri of the pass in :data:`_SHARED`: its tetrahedra and the points inside them as
+    a mesh (on the grid's lattice: exact integer predicates), its free vertices the only ones
+    that move, decimated to the threshold or by its quota.  Returns the points it removed,
+    its new tetrahedra, and the points inside them with their rows (global indices)."""
+    sh = _SHARED["region"]
+    rows = sh["order"][sh["starts"][ri]:sh["ends"][ri]]
+    reg = sh["treg"][rows[0]]
+    a, z = np.searchsorted(sh["pkeys"], reg, side="left"), np.searchsorted(sh["pkeys"], reg, side="right")
+    inside = sh["pts"][a:z]
+    tg = sh["T"][rows]
+    verts = np.unique(tg)
+    local = np.concatenate([verts, inside])  # vertices first, then the points inside
+    order_local = np.argsort(local)
+    tl = order_local[np.searchsorted(local[order_local], tg)]
+    located = np.full(len(local), -1, np.int64)
+    located[len(verts):] = sh["row_of"][sh["owner"][inside]]
+    St = new_mesh_state(sh["ijk"][local], tl, np.asarray(sh["vol"].reshape(-1)[local], np.float64),
+                        located=located, key="sse", lazy=False)
+    St.lock[~sh["free"][local]] |= LOCK_ALL
+    dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=St)
+    quota = sh["quota"]
+    dec.run(0 if quota is None else dec.n_vertices - int(quota[ri]), key_max=sh["tau"])
+    alive_row = np.cumsum(dec.S.alive) - 1
+    nonv = np.flatnonzero(~dec.S.isv)
+    return local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
 
 
 def point_weights(shape, tets, ptet):
@@ -332,8 +374,8 @@ def _det(u, v, w):
     return np.einsum("ij,ij->i", np.cross(u, v), w)
 
 
-def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), interior=None, progress=None,
-                     t_start=None):
+def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), interior=None, threads=1,
+                     progress=None, t_start=None):
     """The whole run of ``method="decimate"`` with ``block`` for :func:`trivsel.reduce`: grid
     data decimated by :func:`decimate_in_blocks` to ``target`` points (or, None, to ``tol_inf``).
     Returns ``(snapshots, selected, stats, seconds)`` as
@@ -354,7 +396,7 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
             progress(count, target or 0, float("nan"), float("nan"), time.perf_counter() - t_start)
 
     say(N)
-    out = decimate_in_blocks(vol, block, count=target, tol_inf=tol_inf, progress=say)
+    out = decimate_in_blocks(vol, block, count=target, tol_inf=tol_inf, threads=threads, progress=say)
     te = time.perf_counter()
     verts, w = point_weights(data.shape, out["tets"], out["ptet"])
     f = vol.reshape(-1)

@@ -154,7 +154,7 @@ def _run_in_blocks(problem, interior, targets):
     target = targets[0] if (stop["fractions"] or stop["count"] is not None) else None
     snaps, selected, stats, t_errors = reduce_in_blocks(
         data, target, block=opts.block, tol_inf=stop["tol_inf"], values=opts.values, interior=interior,
-        progress=problem.progress, t_start=problem.t_start)
+        threads=problem.threads, progress=problem.progress, t_start=problem.t_start)
     requested_fractions(snaps, stop["fractions"], N)
     notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
     t_total = time.perf_counter() - problem.t_start
