@@ -53,20 +53,30 @@ def _cli_lines():
 
 @pytest.mark.slow
 def test_readme_blocks_example_runs(tmp_path, monkeypatch):
-    """The ```bash block of "Large volumes in blocks" runs and writes the merged mesh and summary."""
+    """The ```bash block of "Large volumes in blocks" runs: ``trivsel reduce --block`` writes its
+    table at the count asked for, ``trivsel blocks`` the merged mesh and summary."""
     import json
 
-    from trivsel.cli import main
+    import pandas as pd
 
-    lines = [ln.strip() for b in _blocks(_section("Large volumes in blocks"), "bash") for ln in b.splitlines()
-             if ln.strip() and not ln.strip().startswith("#")]
-    assert lines
+    from trivsel.cli import main
+    from trivsel.selection import count_for_fraction
+
+    lines = [ln.split("  #", 1)[0].strip() for b in _blocks(_section("Large volumes in blocks"), "bash")
+             for ln in b.splitlines() if ln.strip() and not ln.strip().startswith("#")]
+    assert [shlex.split(ln)[1] for ln in lines] == ["reduce", "blocks"], lines
     monkeypatch.chdir(tmp_path)
     for line in lines:
         argv = shlex.split(line)
-        assert argv[:2] == ["trivsel", "blocks"], line
         assert main(argv[1:]) == 0, f"README line failed: {line}"
         out = tmp_path / argv[argv.index("--out") + 1]
+        if argv[1] == "reduce":
+            assert "--block" in argv
+            table = pd.read_csv(out / "errors.csv")
+            n = int(argv[argv.index("--n") + 1])
+            assert (table["n_selected"] == count_for_fraction(float(argv[argv.index("--fractions") + 1]),
+                                                               (n + 1) ** 3)).all()
+            continue
         summary = json.loads((out / "summary.json").read_text())
         assert summary["E_inf"] <= float(argv[argv.index("--tol-inf") + 1])
         assert (out / "mesh.pvtu").is_file() and (out / "mesh.vtu").is_file()
