@@ -2,6 +2,7 @@
 (``reduce(boundary=...)``): conforming seams, the global E_inf tolerance, and the same
 result from any split of the work."""
 
+import contextlib
 import json
 import re
 import subprocess
@@ -409,31 +410,55 @@ def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     assert result_files(tmp_path / "slurm") == result_files(tmp_path / "local")
 
 
+def slurm_blocks_command(out):
+    """The `trivsel blocks` command of the SLURM fault tests: f4, n 16, blocks of 8, in ``out``,
+    through the workflow profile."""
+    from pathlib import Path
+
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    return [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
+            "--tol-inf", "0.01", "--out", str(out), "--", "--executor", "slurm", "--workflow-profile", str(profile),
+            "--jobs", "4", "--slurm-init-seconds-before-status-checks", "5"]
+
+
+@contextlib.contextmanager
+def background_run(cmd, log):
+    """`trivsel blocks` ``cmd`` started in a session of its own, its output in ``log``; if it still
+    runs on the way out (a check failed), it is killed and the SLURM jobs of its folder cancelled."""
+    import os
+    import signal
+
+    from trivsel.blocks.slurm import active_jobs, job_prefix
+
+    with open(log, "w") as fh:
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=fh, start_new_session=True)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            prefix = job_prefix(cmd[cmd.index("--out") + 1])
+            subprocess.run(["scancel", *[i for i, _ in active_jobs(prefix)]], check=False)
+            proc.wait()
+
+
 @pytest.mark.slurm
 def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm):
     """A block job cancelled with scancel while it runs: the run ends within a bounded time (not
     the wait for ever of a state polled from sacct), its last line names the job and CANCELLED,
     no job of the folder is left in the queue, and the same command run again completes, with
     every job it submitted COMPLETED and the result of a local run."""
-    import os
-    import signal
     import time
-    from pathlib import Path
 
     from conftest import sacct_rows
 
     from trivsel.blocks.slurm import active_jobs, job_prefix
 
-    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     out = tmp_path / "slurm"
-    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
-           "--tol-inf", "0.01", "--out", str(out), "--", "--executor", "slurm", "--workflow-profile", str(profile),
-           "--jobs", "4", "--slurm-init-seconds-before-status-checks", "5"]
+    cmd = slurm_blocks_command(out)
     prefix = job_prefix(out)
     log = tmp_path / "first.log"
-    with open(log, "w") as fh:  # no retry, so that the cancelled job ends the run
-        proc = subprocess.Popen(cmd + ["--retries", "0"], stdout=fh, stderr=fh, start_new_session=True)
-    try:
+    with background_run(cmd + ["--retries", "0"], log) as proc:  # no retry, so that the cancelled job ends the run
         cancelled, deadline = None, time.time() + 600
         while cancelled is None and time.time() < deadline and proc.poll() is None:
             # the block jobs run once every plane is done: then the one running job is theirs
@@ -444,11 +469,6 @@ def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm)
             time.sleep(0.5)
         assert cancelled, log.read_text()[-5000:]
         proc.wait(timeout=240)
-    finally:
-        if proc.poll() is None:
-            os.killpg(proc.pid, signal.SIGKILL)
-            subprocess.run(["scancel", *[i for i, _ in active_jobs(prefix)]], check=False)
-            proc.wait()
     lines = log.read_text().splitlines()
     assert proc.returncode not in (0, None), lines[-40:]
     assert re.match(rf"trivsel: error: SLURM job {cancelled} .*ended CANCELLED.*run the same command again",
@@ -467,6 +487,64 @@ def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm)
     assert all(row["State"] == "COMPLETED" and row["JobName"].startswith(prefix + "_") for row in rows.values()), rows
     local = run_blocks(tmp_path / "local", "-c", "2")
     assert local.returncode == 0, local.stderr[-3000:]
+    assert result_files(out) == result_files(tmp_path / "local")
+
+
+@pytest.mark.slurm
+def test_slurm_timed_out_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm):
+    """A block job that runs past its time limit (1 minute, SLURM's least, given with Snakemake's
+    `--set-resources`; its commands stopped with SIGSTOP, as a job stuck on a slow file system
+    would be) is ended TIMEOUT by SLURM: the run ends within a bounded time, its last line names
+    the job, TIMEOUT and how to give the job more time, no job of the folder is left in the
+    queue, and the same command without the short limit completes with the result of a local run."""
+    import os
+    import signal
+    import time
+    from pathlib import Path
+
+    from trivsel.blocks.slurm import active_jobs, job_prefix
+
+    out = tmp_path / "slurm"
+    cmd = slurm_blocks_command(out)
+    prefix = job_prefix(out)
+    log = tmp_path / "first.log"
+    # no retry, so that the timed-out job ends the run
+    with background_run(cmd + ["--retries", "0", "--set-resources", "blocks_0:runtime=1"], log) as proc:
+        stopped, deadline = None, time.time() + 600
+        while stopped is None and time.time() < deadline and proc.poll() is None:
+            # the blocks' job (its comment names its rule), stopped as soon as it runs: its batch
+            # script and the commands in it, not srun, which talks to slurmctld (once, with srun
+            # stopped too, SLURM did not end the job at its limit)
+            rows = [r.split("|") for r in subprocess.run(["squeue", "--me", "-h", "-o", "%i|%j|%k|%T"],
+                                                         capture_output=True, text=True, timeout=60).stdout.split()]
+            job = next((r[0] for r in rows if r[1].startswith(prefix + "_") and r[2:] == ["rule_blocks_0", "RUNNING"]),
+                       None)
+            pids = [x.split()[0] for x in subprocess.run(["scontrol", "listpids", job], capture_output=True,
+                                                         text=True, timeout=60).stdout.splitlines()[1:]] if job else []
+            for pid in pids:
+                try:
+                    if Path(f"/proc/{pid}/comm").read_text().strip() not in ("srun", "slurmstepd"):
+                        os.kill(int(pid), signal.SIGSTOP)
+                        stopped = job
+                except OSError:  # ended meanwhile
+                    pass
+            time.sleep(0.5)
+        assert stopped, log.read_text()[-5000:]
+        # SLURM ends it 1 to 1.5 minutes after it started (it checks the limits every 30 s), and
+        # Snakemake's status checks, 10 s further apart each time, see it up to 1 minute later and
+        # sleep once more before Snakemake exits; meanwhile the local run to compare with
+        local = run_blocks(tmp_path / "local", "-c", "2")
+        assert local.returncode == 0, local.stderr[-3000:]
+        proc.wait(timeout=360)
+    lines = log.read_text().splitlines()
+    assert proc.returncode not in (0, None), lines[-40:]
+    assert re.match(rf"trivsel: error: SLURM job {stopped} .*ended TIMEOUT.*--set-resources blocks_0:runtime=MINUTES"
+                    r".* run the same command again", lines[-1]), lines[-40:]
+    assert not active_jobs(prefix)
+    assert not (out / "summary.json").exists()
+
+    r = subprocess.run(cmd, capture_output=True, text=True, timeout=900)
+    assert r.returncode == 0, (r.stdout + r.stderr)[-5000:]
     assert result_files(out) == result_files(tmp_path / "local")
 
 

@@ -1219,18 +1219,25 @@ def _slurm_failure(prefix, since, out, failure):
     since ``since`` that ended without success, as a :class:`JobFailed` in one line (its
     state and log); but ``failure`` itself when no job ended so, or when the job merely FAILED
     (its command's exit status) and ``failure`` is that job's own message (bad input, say,
-    which a rerun would not mend)."""
+    which a rerun would not mend).  A job that ran out of time (TIMEOUT) would run out of it again
+    in a rerun with the same limit: the line says how to raise it."""
     failed = slurm.failed_jobs(prefix, since)
     if not failed:
         return failure
     job, state, comment = failed[0]
     if state.split(" ")[0] == "FAILED" and failure.own:
         return failure
-    logs = sorted((Path(out) / ".snakemake" / "slurm_logs").rglob(f"{job}.log"))
+    slurm_logs = Path(out) / ".snakemake" / "slurm_logs"
+    logs = sorted(slurm_logs.rglob(f"{job}.log"))
+    todo = "run the same command again to resume"
+    if state.split(" ")[0] == "TIMEOUT":  # a rule's job logs to slurm_logs/rule_RULE/, a group's to group_.../
+        folder = logs[0].relative_to(slurm_logs).parts[0] if logs else ""
+        rule = folder[len("rule_"):] if folder.startswith("rule_") else "RULE"
+        todo = (f"it ran past its time limit: raise its runtime (after '--': --set-resources {rule}:runtime=MINUTES) "
+                f"and {todo}")
     return JobFailed(f"SLURM job {job}{f' ({comment})' if comment else ''} ended {state}"
                      f"{f', log {logs[0]}' if logs else ''}"
-                     f"{f' ({len(failed) - 1} more failed)' if len(failed) > 1 else ''}; "
-                     "run the same command again to resume")
+                     f"{f' ({len(failed) - 1} more failed)' if len(failed) > 1 else ''}; {todo}")
 
 
 def main(argv=None):
