@@ -618,8 +618,9 @@ def make_config(config):
     method = config.get("method", "greedy")
     if not get_method(method).PRESCRIBED_BOUNDARY:  # the 3-D stage starts from prescribed triangles
         able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
+        other = getattr(get_method(method), "IN_BLOCKS", None)  # the method's own way through blocks
         raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose "
-                         f"{' or '.join(able)}")
+                         f"{' or '.join(able)}" + (f"; or {other}" if other else ""))
     merged = config.get("merged", True)
     if not isinstance(merged, bool):
         raise InputError(f"merged must be true or false, got {merged!r}")

@@ -28,6 +28,8 @@ NAME = "decimate"
 DEFAULTS = {"criterion": "sse"}
 #: The collapses start from the full grid's Kuhn split; a prescribed boundary is not supported.
 PRESCRIBED_BOUNDARY = False
+#: Its own way through blocks, for the refusal of ``trivsel blocks --method decimate``.
+IN_BLOCKS = "decimate in one process, a block at a time: trivsel reduce INPUT --block B"
 #: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
 #: corner lists, the buckets and the queue), and more with fitted values (the points'
 #: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
