@@ -22,8 +22,9 @@ into blocks that share their faces (the *seams*)::
              see.  Its other vertices are locked, and it is decimated (exact queue) down
              to tau.  The vertices near a region's cut are not free; two more grids, cut
              elsewhere, free them
-    quota    the vertices still over the count are taken, cheapest first, from the
-             regions of one more grid, each in proportion to its free vertices
+    quota    the vertices still over the count are taken from the regions of one more
+             grid by one more threshold: each region records its cheapest collapses, and
+             the cheapest of all, a prefix of each region's sequence, are made
 
       blocks (pass 1)      regions (cuts through the blocks' middles)
       +-----+-----+            :     :
@@ -160,12 +161,15 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     for shift in SEAM_SHIFTS:
         if not cand.any():
             break
+        surplus = None if target is None else int(isv.sum()) - target  # never below the count
+        if surplus is not None and surplus <= 0:
+            break
         T, owner, isv, cand, st = _region_pass(vol, ijk, T, owner, isv, cand, round(shift * block),
-                                               REGION * int(block), tau, None, tol_inf, threads)
+                                               REGION * int(block), tau, surplus, tol_inf, threads)
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
     stats["after_seams"] = int(isv.sum())
-    # the quota step: the vertices over the target, taken from every region in proportion
+    # the quota step: the vertices over the target, the cheapest across the regions
     for shift in QUOTA_SHIFTS:
         surplus = int(isv.sum()) - (target if target is not None else int(isv.sum()))
         if surplus <= 0:
@@ -258,8 +262,8 @@ def _threshold(runmax, inner, seam_points, target):
 
 def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf, threads=1):
     """Decimate the candidate vertices ``cand`` in the regions of edge ``size`` whose cuts are
-    at ``off + k size``, each down to ``tau`` or, with ``surplus``, by its share of that many
-    vertices: returns the new mesh, owners, vertex flags, the candidates left (not free in any
+    at ``off + k size``, each down to ``tau`` and, with ``surplus``, the regions together by
+    at most that many vertices, the cheapest (:func:`_quota_cut`): returns the new mesh, owners, vertex flags, the candidates left (not free in any
     region of this grid) and the pass's counts."""
     r3 = (ijk + (size - off % size)) // size  # region index per axis
     dims = r3.max(axis=0) + 1
@@ -286,14 +290,12 @@ def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf
     row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
     for s, e in zip(starts, ends):
         row_of[order[s:e]] = np.arange(e - s)
-    quota = None
-    if surplus is not None:  # each region's share of the surplus, by its free vertices (largest remainders)
-        nfree = np.bincount(np.searchsorted(treg[order][starts], rid[free]), minlength=len(starts)).astype(float)
-        want = surplus * nfree / max(nfree.sum(), 1.0)
-        quota = np.floor(want).astype(np.int64)
-        quota[np.argsort(quota - want)[: surplus - int(quota.sum())]] += 1
     _SHARED["region"] = dict(vol=vol, ijk=ijk, T=T, owner=owner, free=free, order=order, starts=starts, ends=ends,
-                             treg=treg, pts=pts, pkeys=pkeys, row_of=row_of, quota=quota, tau=tau, tol_inf=tol_inf)
+                             treg=treg, pts=pts, pkeys=pkeys, row_of=row_of, quota=None, tau=tau, tol_inf=tol_inf,
+                             costs=False)
+    if surplus is not None:
+        _SHARED["region"]["quota"] = _quota_cut(rid, free, treg, order, starts, surplus, threads,
+                                                share_cap=tau == INF)
     keep = np.ones(len(T), bool)
     new_T, new_owner_pts, new_owner_rows = [], [], []
     isv = isv.copy()
@@ -320,6 +322,25 @@ def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf
                                    "removed": removed, "not_free": int(left.sum())}
 
 
+def _quota_cut(rid, free, treg, order, starts, surplus, threads, share_cap):
+    """How many vertices each region of a pass removes, at most ``surplus`` in all: each region
+    records the costs of its cheapest collapses (exact queue, down to the pass's threshold;
+    with ``share_cap``, at most twice its share of ``surplus`` by free vertices), and the
+    ``surplus`` cheapest of all, in their running maxima, are taken (one threshold across the
+    regions, as across the blocks: each region's count is a prefix of its own sequence)."""
+    nfree = np.bincount(np.searchsorted(treg[order][starts], rid[free]), minlength=len(starts))
+    sh = _SHARED["region"]
+    sh["quota"] = (np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16) if share_cap
+                   else nfree)
+    sh["costs"] = True
+    runmax = [np.maximum.accumulate(k) if len(k) else k for k in _map(_region_work, range(len(starts)), threads)]
+    sh["costs"] = False
+    value = np.concatenate(runmax + [np.zeros(0)])
+    region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
+    take = np.lexsort((region, value))[:surplus]  # by cost, ties by region: a prefix of every region's sequence
+    return np.bincount(region[take], minlength=len(runmax))
+
+
 def _region_work(ri):
     """Region ri of the pass in :data:`_SHARED`: its tetrahedra and the points inside them as
     a mesh (on the grid's lattice: exact integer predicates), its free vertices the only ones
@@ -343,6 +364,10 @@ def _region_work(ri):
     dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=St)
     quota = sh["quota"]
     dec.run(0 if quota is None else dec.n_vertices - int(quota[ri]), key_max=sh["tau"])
+    if sh["costs"]:
+        return dec.S.hkey[dec.removed()].copy()
+    if quota is not None and len(dec.removed()) != quota[ri]:
+        raise RuntimeError(f"region {ri} did not repeat its recorded collapses")
     alive_row = np.cumsum(dec.S.alive) - 1
     nonv = np.flatnonzero(~dec.S.isv)
     return local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
