@@ -319,15 +319,8 @@ def _blocks_hint(a, chosen, available):
     if chosen == "decimate":  # decimate itself in blocks, in this process, where one count or fraction fits
         block = _decimate_block_for_memory(a, source, available)
         if block is not None:
-            argv, skip = [], False
-            for x in a.argv:  # the same command, its --block replaced
-                if not skip and not x.startswith("--block="):
-                    if x == "--block":
-                        skip = True
-                        continue
-                    argv.append(x)
-                else:
-                    skip = False
+            argv = [x for i, x in enumerate(a.argv)  # the same command, its --block replaced
+                    if x != "--block" and not x.startswith("--block=") and (i == 0 or a.argv[i - 1] != "--block")]
             return "in blocks of bounded memory: " + shlex.join(["trivsel", *argv, "--block", str(block)])
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
     method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
@@ -348,6 +341,7 @@ def _decimate_block_for_memory(a, source, available):
     bytes on the grid of ``source``, or None (a stop that blocks do not take, or too large
     even in blocks)."""
     import math
+    from types import SimpleNamespace
 
     from .io.regions import open_volume
     from .methods.decimate import memory
@@ -357,7 +351,7 @@ def _decimate_block_for_memory(a, source, available):
         return None
     vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
            else open_volume(function=a.function, n=a.n))
-    grid = type("Grid", (), {"n_points": math.prod(vol.shape), "is_grid": True, "tets": None})
+    grid = SimpleNamespace(n_points=math.prod(vol.shape), is_grid=True, tets=None)
     for block in (128, 96, 64, 48, 32, 16):
         opts = Options(method="decimate", block=block, values=tuple(a.values or ("data",)))
         if sum(b for b, _ in memory(grid, opts)) <= available:

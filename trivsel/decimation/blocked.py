@@ -100,9 +100,9 @@ def _on_seam(g, seam_axes):
 def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, threads=1, progress=None):
     """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
 
-    Stops at ``count`` vertices (or ``fraction`` of the points), approximately: the cost
-    threshold that the blocks' recorded sequences give for it, or where no collapse keeps
-    every residual within ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
+    Stops at ``count`` vertices (or ``fraction`` of the points; above it only where too few
+    vertices are free in any region), or where no collapse keeps every residual within
+    ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
     C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
     every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
     threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
@@ -156,7 +156,6 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     stats = {"blocks": len(blocks), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
 
     # the seams, region by region: every vertex a candidate, down to tau
-    ijk = np.stack(np.unravel_index(np.arange(N), tuple(n)), axis=1)
     cand = isv.copy()
     for shift in SEAM_SHIFTS:
         if not cand.any():
@@ -164,17 +163,17 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
         surplus = None if target is None else int(isv.sum()) - target  # never below the count
         if surplus is not None and surplus <= 0:
             break
-        T, owner, isv, cand, st = _region_pass(vol, ijk, T, owner, isv, cand, round(shift * block),
+        T, owner, isv, cand, st = _region_pass(vol, T, owner, isv, cand, round(shift * block),
                                                REGION * int(block), tau, surplus, tol_inf, threads)
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
     stats["after_seams"] = int(isv.sum())
     # the quota step: the vertices over the target, the cheapest across the regions
-    for shift in QUOTA_SHIFTS:
-        surplus = int(isv.sum()) - (target if target is not None else int(isv.sum()))
+    for shift in QUOTA_SHIFTS if target is not None else ():
+        surplus = int(isv.sum()) - target
         if surplus <= 0:
             break
-        T, owner, isv, _, st = _region_pass(vol, ijk, T, owner, isv, isv.copy(), round(shift * block),
+        T, owner, isv, _, st = _region_pass(vol, T, owner, isv, isv.copy(), round(shift * block),
                                             REGION * int(block), INF, surplus, tol_inf, threads)
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
@@ -260,15 +259,19 @@ def _threshold(runmax, inner, seam_points, target):
     return float(cand[lo])
 
 
-def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf, threads=1):
+def _region_pass(vol, T, owner, isv, cand, off, size, tau, surplus, tol_inf, threads=1):
     """Decimate the candidate vertices ``cand`` in the regions of edge ``size`` whose cuts are
     at ``off + k size``, each down to ``tau`` and, with ``surplus``, the regions together by
-    at most that many vertices, the cheapest (:func:`_quota_cut`): returns the new mesh, owners, vertex flags, the candidates left (not free in any
-    region of this grid) and the pass's counts."""
-    r3 = (ijk + (size - off % size)) // size  # region index per axis
-    dims = r3.max(axis=0) + 1
-    rid = np.where(cand, (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2], -1)
-    del r3
+    at most that many vertices, the cheapest (:func:`_quota_cut`): returns the new mesh,
+    owners, vertex flags, the candidates left (not free in any region of this grid) and the
+    pass's counts."""
+    shift = size - off % size
+    dims = (np.asarray(vol.shape, np.int64) - 1 + shift) // size + 1  # regions per axis
+    c = np.flatnonzero(cand)
+    r3 = (np.stack(np.unravel_index(c, vol.shape), axis=1) + shift) // size  # the candidates' regions per axis
+    rid = np.full(len(isv), -1, np.int64)
+    rid[c] = (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2]
+    del c, r3
     R = rid[T]
     rmin = np.where(R >= 0, R, np.iinfo(np.int64).max).min(axis=1)
     rmax = R.max(axis=1)
@@ -290,7 +293,7 @@ def _region_pass(vol, ijk, T, owner, isv, cand, off, size, tau, surplus, tol_inf
     row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
     for s, e in zip(starts, ends):
         row_of[order[s:e]] = np.arange(e - s)
-    _SHARED["region"] = dict(vol=vol, ijk=ijk, T=T, owner=owner, free=free, order=order, starts=starts, ends=ends,
+    _SHARED["region"] = dict(vol=vol, T=T, owner=owner, free=free, order=order, starts=starts, ends=ends,
                              treg=treg, pts=pts, pkeys=pkeys, row_of=row_of, quota=None, tau=tau, tol_inf=tol_inf,
                              costs=False)
     if surplus is not None:
@@ -358,7 +361,7 @@ def _region_work(ri):
     tl = order_local[np.searchsorted(local[order_local], tg)]
     located = np.full(len(local), -1, np.int64)
     located[len(verts):] = sh["row_of"][sh["owner"][inside]]
-    St = new_mesh_state(sh["ijk"][local], tl, np.asarray(sh["vol"].reshape(-1)[local], np.float64),
+    St = new_mesh_state(np.stack(np.unravel_index(local, sh["vol"].shape), axis=1), tl, np.asarray(sh["vol"].reshape(-1)[local], np.float64),
                         located=located, key="sse", lazy=False)
     St.lock[~sh["free"][local]] |= LOCK_ALL
     dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=St)
@@ -407,7 +410,9 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
     :func:`trivsel.decimation.reduce_by_collapse` does, with one snapshot."""
     import time
 
-    from ..fitting import fit_vertex_values
+    from types import SimpleNamespace
+
+    from ..fitting import fit_on_mesh
     from ..norms import error_norms
     from ..result import Snapshot
 
@@ -426,11 +431,9 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
     verts, w = point_weights(data.shape, out["tets"], out["ptet"])
     f = vol.reshape(-1)
     r = f - np.einsum("ij,ij->i", w, f[verts])
-    fit = None
-    if "fit" in values:
-        fv, fr = fit_vertex_values(verts, w, f, out["vertices"])
-        fit = {"vertices": out["vertices"], "values": fv, "residuals": fr, "errors": error_norms(fr, interior)}
-    del verts, w
+    mesh = SimpleNamespace(point_weights=lambda: (verts, w), vertices=lambda: out["vertices"])
+    fit = fit_on_mesh(mesh, f, interior) if "fit" in values else None
+    del verts, w, mesh
     m = len(out["vertices"])
     shot = Snapshot(fraction=m / N, n_selected=m, selected=out["vertices"], tets=out["tets"], residuals=r,
                     errors=error_norms(r, interior), seconds=time.perf_counter() - t_start, fit=fit)

@@ -135,11 +135,10 @@ def check_blocks(data, options, stop):
     the squared error over every point (:mod:`trivsel.decimation.blocked`)."""
     if not options.block:
         return
-    given = [f"--{k.replace('_', '-')}" for k, v in (("tol_rms", stop["tol_rms"]),) if v is not None]
     if not data.is_grid:
         raise InputError("option block applies to grids; scattered points and meshes are decimated in one piece")
-    if given:
-        raise InputError(f"option block stops at a count, a fraction or tol_inf, not at {given[0]}")
+    if stop["tol_rms"] is not None:
+        raise InputError("option block stops at a count, a fraction or tol_inf, not at --tol-rms")
     if options.criterion == "max" or options.candidates == "interior":
         what = "criterion 'max'" if options.criterion == "max" else "candidates 'interior'"
         raise InputError(f"option block orders collapses by criterion 'sse' over all candidates, not {what}")
