@@ -14,6 +14,16 @@ seconds of both.  ``t1`` is the central crop of the ICBM152 2009a T1 (nilearn's 
 ``realdata`` extra), ``f4`` the paper's function 4 sampled on the same number of points.
 ``--whole-t1`` runs the blocked decimation alone on the whole 1 mm template (8.7 M points) and
 prints its time, its count and its process's peak memory.
+
+``--jobs`` runs ``trivsel blocks --method decimate --values data fit -c 2`` as a user does, a
+whole process timed by ``/usr/bin/time``: on the whole T1 (``--jobs t1``, converted to Zarr
+first) or on function 4 (``--jobs f4 --size 257``), to each ``--fractions`` (or ``--count``).
+Prints the wall time, the largest process's peak memory (every job is a process of its own),
+the largest job by Snakemake's benchmark files, the count and the errors::
+
+    python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --fractions 0.05
+    python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --count 362160
+    python benchmarks/bench_blocked_decimate.py --jobs f4 --size 257 --block 64 --fractions 0.05
 """
 
 from __future__ import annotations
@@ -87,6 +97,44 @@ def whole_t1(block, fraction):
           f"in {took:.0f} s, peak {peak:.2f} GB (one process); {out['stats']}")
 
 
+def jobs(source, size, block, fraction=None, count=None, keep=None):
+    """One ``trivsel blocks --method decimate`` run as a whole process (see the module docstring)."""
+    import json
+    import re
+    import subprocess
+    import tempfile
+
+    folder = Path(keep) if keep else Path(tempfile.mkdtemp(prefix="bench-blocks-"))
+    if source == "t1":
+        from trivsel.study.realdata import REAL, package_file
+
+        package, rel, _ = REAL["icbm152"]
+        store = folder / "t1.zarr"
+        if not store.exists():
+            subprocess.run([sys.executable, "-m", "trivsel", "convert", str(package_file(package, rel)), str(store)],
+                           check=True)
+        src = [str(store)]
+    else:
+        src = ["--function", source[1:], "--n", str(size - 1)]
+    stop = ["--count", str(count)] if count is not None else ["--fraction", str(fraction)]
+    out = folder / f"run-{source}-{block}-{count if count is not None else fraction}"
+    cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "trivsel", "blocks", *src, "--block", str(block), "--method",
+           "decimate", *stop, "--values", "data", "fit", "--out", str(out), "-c", "2"]
+    p = subprocess.run(cmd, capture_output=True, text=True)
+    if p.returncode != 0:
+        raise SystemExit(p.stderr[-2000:])
+    wall = p.stderr.split("Elapsed (wall clock) time (h:mm:ss or m:ss): ")[1].split()[0]
+    peak = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr).group(1)) / 2**20
+    rows = []
+    for tsv in (out / "benchmarks").rglob("*.tsv"):
+        vals = tsv.read_text().splitlines()[1].split("\t")
+        rows.append((float(vals[2]), str(tsv.relative_to(out / "benchmarks").with_suffix(""))))
+    job_mb, job = max(rows)
+    s = json.loads((out / "summary.json").read_text())
+    print(f"| {source} {s['points']:,} points | {block} | {s['target']:,} | {s['vertices']:,} | {wall} | {peak:.2f} | "
+          f"{job} {job_mb / 1024:.2f} | {s['E_rms']:.4g} | {s['fit']['E_rms']:.4g} | {s['E_inf']:.4g} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop) or fN (function N)")
@@ -94,7 +142,17 @@ def main(argv=None):
     ap.add_argument("--block", type=int, default=32, help="grid intervals per block")
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.05, 0.1])
     ap.add_argument("--whole-t1", action="store_true", help="the blocked run alone on the whole T1 template")
+    ap.add_argument("--jobs", choices=["t1", "f4"], help="trivsel blocks --method decimate as a whole process")
+    ap.add_argument("--count", type=int, help="with --jobs: stop at this count instead of the fractions")
+    ap.add_argument("--keep", help="with --jobs: the folder for the runs (default: a new temporary one)")
     a = ap.parse_args(argv)
+    if a.jobs:
+        print("| input | block | target | vertices | wall | largest process GB | largest job GB | E_RMS data | "
+              "E_RMS fit | E_inf |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for fr in [None] if a.count is not None else a.fractions:
+            jobs(a.jobs, a.size, a.block, fraction=fr, count=a.count, keep=a.keep)
+        return
     if a.whole_t1:
         for fr in a.fractions:
             whole_t1(a.block, fr)

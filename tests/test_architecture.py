@@ -159,5 +159,5 @@ def test_a_new_method_runs_in_reduce_and_in_blocks_through_the_registry(monkeypa
     assert calls == [False] + [True] * 8 and len(tets)
     blocks.check_tetrahedra(f.shape, tets)
     monkeypatch.setitem(METHODS, "toy", types.SimpleNamespace(**{**vars(toy), "PRESCRIBED_BOUNDARY": False}))
-    with pytest.raises(InputError, match="method 'toy' cannot take the blocks' prescribed faces: choose paper or greedy"):
+    with pytest.raises(InputError, match="method 'toy' cannot take the blocks' prescribed faces: choose paper or greedy or decimate"):
         blocks.make_config({"function": 4, "n": 8, "block": 4, "tol_inf": 0.1, "method": "toy"})

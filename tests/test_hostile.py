@@ -40,6 +40,7 @@ def _cloud(n=50, seed=0):
 
 
 BLOCKS_FN = ["--function", "4", "--n", "8", "--block", "4", "--tol-inf", "0.1"]
+BLOCKS_DEC = ["--function", "4", "--n", "8", "--block", "4", "--method", "decimate"]
 
 
 def _corner_boundary(p):
@@ -222,9 +223,35 @@ def _cases(tmp: Path):
         ("blocks: merged 'no' in --config", ["blocks", *BLOCKS_FN, "--config",
                                              _write(tmp, "m.yaml", _text("merged: 'no'\n")), "--out", out], 2,
          "merged must be true or false, got 'no'"),
-        ("blocks: method decimate in --config", ["blocks", *BLOCKS_FN, "--config",
-                                                 _write(tmp, "d.yaml", _text("method: decimate\n")), "--out", out], 2,
-         "method 'decimate' cannot take the blocks' prescribed faces: choose paper or greedy"),
+        ("blocks: greedy with a count", ["blocks", *BLOCKS_FN, "--count", "50", "--out", out], 2,
+         "method 'greedy' stops in blocks at tol_inf only, not at count: use --tol-inf (or --method decimate)"),
+        ("blocks: decimate without a stop", ["blocks", *BLOCKS_DEC, "--out", out], 2,
+         "give a stop: --count, --fraction or --tol-inf"),
+        ("blocks: decimate, count and fraction", ["blocks", *BLOCKS_DEC, "--count", "50", "--fraction", "0.1",
+                                                  "--out", out], 2, "give one of count and fraction, not both"),
+        ("blocks: decimate, count 3", ["blocks", *BLOCKS_DEC, "--count", "3", "--out", out], 2,
+         "count must be a whole number from 8 (the box's corners) to the 729 points; got 3"),
+        ("blocks: decimate, count above the points", ["blocks", *BLOCKS_DEC, "--count", "730", "--out", out], 2,
+         "to the 729 points; got 730"),
+        ("blocks: decimate, fraction 1.5", ["blocks", *BLOCKS_DEC, "--fraction", "1.5", "--out", out], 2,
+         "fraction must be a number in (0, 1]; got 1.5"),
+        ("blocks: decimate, fraction nan", ["blocks", *BLOCKS_DEC, "--fraction", "nan", "--out", out], 2,
+         "fraction must be a number in (0, 1]; got nan"),
+        ("blocks: decimate, values 'fitted' in --config", ["blocks", *BLOCKS_DEC, "--count", "50", "--config",
+                                                            _write(tmp, "v.yaml", _text("values: [data, fitted]\n")),
+                                                            "--out", out], 2,
+         "values must be a list of data and fit (each once); got ['data', 'fitted']"),
+        ("blocks: decimate, count 'many' in --config", ["blocks", *BLOCKS_DEC, "--config",
+                                                         _write(tmp, "c.yaml", _text("count: many\n")), "--out", out],
+         2, "count must be a whole number from 8 (the box's corners) to the 729 points; got 'many'"),
+        ("blocks: decimate, tol_inf -1", ["blocks", *BLOCKS_DEC, "--tol-inf", "-1", "--out", out], 2,
+         "tol_inf must be a finite number >= 0, got -1"),
+        ("blocks: decimate, block 1", ["blocks", "--function", "4", "--n", "8", "--block", "1", "--method", "decimate",
+                                       "--count", "50", "--out", out], 2, "block size must be an integer >= 2"),
+        ("blocks: decimate of a grid larger than the memory", ["blocks", "--function", "4", "--n", "3000", "--block",
+                                                               "64", "--method", "decimate", "--fraction", "0.05",
+                                                               "--out", out], 2,
+         "needs about"),
         ("blocks: Snakemake's --touch after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--touch"], 2,
          "Snakemake's --touch cannot be passed after '--'"),
         ("blocks: Snakemake's --directory after --", ["blocks", *BLOCKS_FN, "--out", out, "--", "--directory",

@@ -78,7 +78,13 @@ def test_readme_blocks_example_runs(tmp_path, monkeypatch):
                                                                (n + 1) ** 3)).all()
             continue
         summary = json.loads((out / "summary.json").read_text())
-        assert summary["E_inf"] <= float(argv[argv.index("--tol-inf") + 1])
+        if "--tol-inf" in argv:
+            assert summary["E_inf"] <= float(argv[argv.index("--tol-inf") + 1])
+        if "--fraction" in argv:
+            n = int(argv[argv.index("--n") + 1])
+            assert summary["vertices"] == count_for_fraction(float(argv[argv.index("--fraction") + 1]), (n + 1) ** 3)
+        if "fit" in argv:
+            assert summary["fit"]["E_rms"] < summary["E_rms"]
         assert (out / "mesh.pvtu").is_file() and (out / "mesh.vtu").is_file()
 
 

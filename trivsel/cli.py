@@ -128,11 +128,18 @@ def build_parser():
     b.add_argument("--volume", type=int, metavar="K", help="volume K (0-based) of a 4-D image")
     b.add_argument("--config", metavar="FILE.yaml",
                    help="the settings as YAML keys (input, function, n, array, volume, block, tol_inf, method, "
-                        "merged; see config/blocks.yaml); options given here override them")
+                        "merged, count, fraction, values; see config/blocks.yaml); options given here override them")
     b.add_argument("--block", type=int, help="grid intervals per block along each axis (e.g. 64)")
     b.add_argument("--tol-inf", type=float, help="E_inf tolerance every stage meets (so the merged mesh does)")
-    b.add_argument("--method", choices=[n for n, m in METHODS.items() if m.PRESCRIBED_BOUNDARY],
-                   help="the 3-D stage's method (default greedy)")
+    b.add_argument("--method", choices=[n for n, m in METHODS.items()
+                                        if m.PRESCRIBED_BOUNDARY or getattr(m, "BLOCK_STAGES", None)],
+                   help="the 3-D stage's method (default greedy), or decimate: bottom-up decimation in blocks, "
+                        "which also stops at --count or --fraction")
+    b.add_argument("--count", type=int, help="decimate: stop at this many vertices in all")
+    b.add_argument("--fraction", type=float, help="decimate: stop at this fraction of the points")
+    b.add_argument("--values", nargs="+", choices=["data", "fit"],
+                   help="decimate: the vertex values written (data, and/or fit: least-squares values; "
+                        "default data)")
     b.add_argument("--no-merged", action="store_true", help="write the pieces and mesh.pvtu, not mesh.vtu")
     b.add_argument("--out", required=True, help="the run's folder (created; run again to resume)")
     b.add_argument("-c", "--cores", default="all", help="cores for local jobs (default all)")
@@ -460,7 +467,8 @@ def _cmd_blocks(a, snakemake_args):
     config = {}
     if a.config:
         config = _read_yaml(a.config)
-    for key in ("input", "function", "n", "array", "volume", "block", "tol_inf", "method"):
+    for key in ("input", "function", "n", "array", "volume", "block", "tol_inf", "method", "count", "fraction",
+                "values"):
         if getattr(a, key) is not None:
             config[key] = getattr(a, key)
     if a.no_merged:
@@ -469,7 +477,8 @@ def _cmd_blocks(a, snakemake_args):
         raise InputError("give either an input volume or --function (and --n), not both")
     if config.get("function") is not None and config.get("n") is None:
         raise InputError("give --n (grid intervals per axis) with --function")
-    for key in ("block", "tol_inf"):
+    needed = ("block",) if config.get("method") == "decimate" else ("block", "tol_inf")
+    for key in needed:
         if config.get(key) is None:
             raise InputError(f"give --{key.replace('_', '-')} (or `{key}:` in --config)")
     from .blocks import JobFailed
@@ -493,7 +502,9 @@ def _cmd_blocks(a, snakemake_args):
     else:
         what = "nothing to run: the results are up to date with the input and settings"
     print(f"trivsel blocks: {what}; {a.out}: {s['vertices']} of {s['points']} points, {s['tetrahedra']} "
-          f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}", file=sys.stderr)
+          f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}"
+          + (f"; fitted values: E_rms {s['fit']['E_rms']:.4g}, E_inf {s['fit']['E_inf']:.4g}" if "fit" in s else ""),
+          file=sys.stderr)
     return 0
 
 
@@ -507,7 +518,8 @@ def _read_yaml(path):
         raise InputError(f"cannot read config {path}: {one_line(exc, first=True)}") from None
     if not isinstance(d, dict):
         raise InputError(f"config {path} must be a mapping of settings, got {type(d).__name__}")
-    known = {"input", "function", "n", "array", "volume", "block", "tol_inf", "method", "merged"}
+    known = {"input", "function", "n", "array", "volume", "block", "tol_inf", "method", "merged", "count", "fraction",
+             "values"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise InputError(f"config {path}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")

@@ -52,6 +52,8 @@ __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block",
 
 #: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
+#: Stops besides ``tol_inf``, for methods with stages of their own in blocks (``BLOCK_STAGES``)
+STOP_KEYS = ("count", "fraction", "values")
 
 
 @dataclass(frozen=True)
@@ -612,26 +614,38 @@ def make_config(config):
     from ..methods import METHODS, get_method
 
     cfg = {k: config.get(k) for k in SOURCE_KEYS}
-    tol = config.get("tol_inf")
-    if isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol) or tol < 0:
-        raise InputError(f"tol_inf must be a finite number >= 0, got {shown(tol)}")
     method = config.get("method", "greedy")
-    if not get_method(method).PRESCRIBED_BOUNDARY:  # the 3-D stage starts from prescribed triangles
-        able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
-        other = getattr(get_method(method), "IN_BLOCKS", None)  # the method's own way through blocks
-        raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose "
-                         f"{' or '.join(able)}" + (f"; or {other}" if other else ""))
+    stages = getattr(get_method(method), "BLOCK_STAGES", None)  # a method's own stages in blocks
+    tol = config.get("tol_inf")
+    if not (tol is None and stages) and (isinstance(tol, bool) or not isinstance(tol, (int, float))
+                                          or not np.isfinite(tol) or tol < 0):
+        raise InputError(f"tol_inf must be a finite number >= 0, got {shown(tol)}")
+    if not get_method(method).PRESCRIBED_BOUNDARY and not stages:  # the 3-D stage starts from prescribed triangles
+        able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY or getattr(m, "BLOCK_STAGES", None)]
+        raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose {' or '.join(able)}")
     merged = config.get("merged", True)
     if not isinstance(merged, bool):
         raise InputError(f"merged must be true or false, got {merged!r}")
+    for key in STOP_KEYS:
+        if config.get(key) is not None and not stages:
+            raise InputError(f"method {method!r} stops in blocks at tol_inf only, not at {key}: use --tol-inf "
+                             "(or --method decimate)")
     vol = _open(cfg)
     plan_blocks((3, 3, 3), config.get("block"))  # the block size's own checks, on a grid of one block
-    check_plan_size(vol.shape, config.get("block"))
-    plan = plan_blocks(vol.shape, config.get("block"))
+    if stages:
+        import importlib
+
+        extra = importlib.import_module(stages).make_config(config, vol.shape)
+        plan = Plan.from_dict(extra["plan"])
+    else:
+        extra = {}
+    if not stages:
+        check_plan_size(vol.shape, config.get("block"))
+        plan = plan_blocks(vol.shape, config.get("block"))
     if cfg["input"] is not None:
         cfg["input"] = str(Path(cfg["input"]).resolve())
-    return {**cfg, "block": config.get("block"), "tol_inf": float(tol), "method": method,
-            "merged": merged, "plan": plan.to_dict(),
+    return {**cfg, "block": config.get("block"), "tol_inf": None if tol is None else float(tol), "method": method,
+            "merged": merged, **extra, "plan": plan.to_dict(),
             "origin": [float(x) for x in vol.origin], "spacing": [float(x) for x in vol.spacing],
             "input_stamp": None if cfg["input"] is None else input_stamp(cfg["input"])}
 
@@ -648,7 +662,7 @@ def _is_run_config(path):
 
 #: The names ``trivsel blocks`` writes at the top of its folder.
 RUN_NAMES = (CONFIG, "kernels.done", "lines", "planes", "pieces", "merged", "logs", "benchmarks", "mesh.pvtu",
-             "mesh.vtu", "summary.json", ".snakemake")
+             "mesh.vtu", "summary.json", ".snakemake", "costs", "tau.json", "meshes", "passes")
 
 
 def check_run_folder(out, full=None):
@@ -1137,13 +1151,17 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     source = [config["input"]] if config.get("input") is not None else []
     out = check_output_dir(out, source)
     full = make_config(config)
+    stages = _stages(full)
     if _runs_locally(snakemake_args):
-        check_job_memory(Plan.from_dict(full["plan"]), merged=full["merged"])
+        if stages:
+            stages.check_job_memory(full)
+        else:
+            check_job_memory(Plan.from_dict(full["plan"]), merged=full["merged"])
     check_run_folder(out, full)
     check_new_input(out, full)
     # batch small jobs on a cluster; name the SLURM jobs after the folder, so that they can be
     # found and cancelled (Snakemake's arguments given after `--` come later and win)
-    batch = [] if job_points == 0 else ["--config", *(
+    batch = [] if job_points == 0 or stages else ["--config", *(
         f"{k}_per_job={v}" for k, v in group_components(Plan.from_dict(full["plan"]), min_points=job_points).items())]
     prefix = slurm.job_prefix(out) if importlib.util.find_spec("snakemake_executor_plugin_slurm") else None
     if prefix:
@@ -1151,7 +1169,8 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     on_slurm = prefix is not None and not _runs_locally(snakemake_args) and slurm.available()
 
     def command(folder, *extra):
-        return [sys.executable, "-m", "snakemake", "--snakefile", str(SNAKEFILE), "--directory", str(folder),
+        snakefile = SNAKEFILE if stages is None else stages.SNAKEFILE
+        return [sys.executable, "-m", "snakemake", "--snakefile", str(snakefile), "--directory", str(folder),
                 "--cores", str(cores), *extra, *batch, *snakemake_args]
 
     if dry_run:  # in the folder of an earlier run of this configuration, else in a temporary one
@@ -1215,6 +1234,16 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
         os.close(lock)
 
 
+def _stages(full):
+    """The module of the method's own stages in blocks (``BLOCK_STAGES``), or None."""
+    import importlib
+
+    from ..methods import get_method
+
+    name = getattr(get_method(full["method"]), "BLOCK_STAGES", None)
+    return None if name is None else importlib.import_module(name)
+
+
 def _slurm_failure(prefix, since, out, failure):
     """The run's ``failure`` as SLURM saw it: the first SLURM job named ``prefix_*`` submitted
     since ``since`` that ended without success, as a :class:`JobFailed` in one line (its
@@ -1241,17 +1270,20 @@ def _slurm_failure(prefix, since, out, failure):
                      f"{f' ({len(failed) - 1} more failed)' if len(failed) > 1 else ''}; {todo}")
 
 
-def main(argv=None):
+def main(argv=None, *, job=None, prog="trivsel.blocks", usage="{kernels,lines,plane,block,merge} OUT [ITEM ...]",
+         batches=("plane", "block")):
     """``python -m trivsel.blocks KIND OUT [ITEM ...]``: one job of a blocked run (the workflow's
-    rules); planes and blocks several at once (a cluster job's batch)."""
+    rules); planes and blocks several at once (a cluster job's batch).  ``job``: the function
+    that runs a job (default :func:`run_job`), for a method's own stages."""
     import signal
     import sys
 
     from ..exceptions import one_line
 
+    run_job_ = run_job if job is None else job
     args = sys.argv[1:] if argv is None else argv
-    if len(args) < 2 or (len(args) > 3 and args[0] not in ("plane", "block")):
-        print("usage: python -m trivsel.blocks {kernels,lines,plane,block,merge} OUT [ITEM ...]", file=sys.stderr)
+    if len(args) < 2 or (len(args) > 3 and args[0] not in batches):
+        print(f"usage: python -m {prog} {usage}", file=sys.stderr)
         return 2
     def stop(signum, frame):
         raise KeyboardInterrupt
@@ -1263,7 +1295,7 @@ def main(argv=None):
     item = items[0]
     try:
         for item in items:  # a batch: one after the other, in this process
-            run_job(args[1], args[0], item)
+            run_job_(args[1], args[0], item)
     except InputError as exc:
         where = f"{args[0]} {item}: " if len(items) > 1 else ""
         print(f"trivsel: error: {where}{one_line(exc)}", file=sys.stderr)

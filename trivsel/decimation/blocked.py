@@ -50,7 +50,9 @@ import numpy as np
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
-__all__ = ["block_cuts", "decimate_in_blocks", "point_weights", "reduce_in_blocks"]
+__all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "assemble",
+           "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
+           "decimate_in_blocks", "point_weights", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -73,16 +75,41 @@ def block_cuts(n, block):
     return np.asarray(cuts, np.int64)
 
 
-def _block_state(volume, lo, hi, seam_axes):
-    """The decimation state of the block ``lo..hi`` (inclusive) of ``volume``, its seam
-    points locked, and the global point index of each of its points."""
-    shape = tuple(int(h - l + 1) for l, h in zip(lo, hi))
-    ijk = np.indices(shape).reshape(3, -1).T
-    n = np.asarray(volume.shape, np.int64)
+def block_list(shape, block):
+    """The cuts of every axis and the blocks as ``(lo, hi)`` grid index bounds (inclusive), in
+    C order of their block indices."""
+    cuts = [block_cuts(int(m), int(block)) for m in shape]
+    bounds = [([int(cuts[0][i]), int(cuts[1][j]), int(cuts[2][k])],
+               [int(cuts[0][i + 1]), int(cuts[1][j + 1]), int(cuts[2][k + 1])])
+              for i in range(len(cuts[0]) - 1) for j in range(len(cuts[1]) - 1) for k in range(len(cuts[2]) - 1)]
+    return cuts, bounds
+
+
+def passes(block):
+    """The passes after the blocks, in order, as ``(kind, offset)``: the seam passes
+    (``"seams"``, down to the threshold) and the quota passes (``"quota"``), each on the grid
+    of regions of edge ``REGION * block`` whose cuts are at ``offset + k REGION block``."""
+    return ([("seams", round(s * block)) for s in SEAM_SHIFTS]
+            + [("quota", round(s * block)) for s in QUOTA_SHIFTS])
+
+
+def region_grid(shape, offset, size):
+    """Regions per axis of the pass grid of edge ``size`` cut at ``offset + k size``, and the
+    shift that puts its first cut at 0."""
+    shift = size - offset % size
+    return (np.asarray(shape, np.int64) - 1 + shift) // size + 1, shift
+
+
+def _block_state(values, lo, shape, seam_axes):
+    """The decimation state of the block of ``values`` (its samples, ``[i, j, k]``) whose
+    first point is ``lo`` in the grid of ``shape``, its seam points locked, and the global
+    point index of each of its points."""
+    bshape = values.shape
+    ijk = np.indices(bshape).reshape(3, -1).T
+    n = np.asarray(shape, np.int64)
     g = ijk + np.asarray(lo, np.int64)
     gid = (g[:, 0] * n[1] + g[:, 1]) * n[2] + g[:, 2]
-    vals = np.asarray(volume[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1], np.float64).ravel()
-    S = new_state(ijk, shape, vals, lock="box", key="sse", lazy=True)
+    S = new_state(ijk, bshape, np.asarray(values, np.float64).ravel(), lock="box", key="sse", lazy=True)
     seam = _on_seam(g, seam_axes)
     S.lock[seam] |= LOCK_ALL
     return S, gid, seam
@@ -97,142 +124,38 @@ def _on_seam(g, seam_axes):
     return on
 
 
-def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, threads=1, progress=None):
-    """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
-
-    Stops at ``count`` vertices (or ``fraction`` of the points; above it only where too few
-    vertices are free in any region), or where no collapse keeps every residual within
-    ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
-    C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
-    every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
-    threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
-    count after every block and every pass.  ``threads`` processes decimate blocks, and the
-    regions of a pass, side by side (forked: the same results as one).
-    """
-    vol = np.asarray(volume)
-    n = np.asarray(vol.shape, np.int64)
-    N = int(np.prod(n))
-    cuts = [block_cuts(int(m), int(block)) for m in n]
-    seam_axes = [c[1:-1] for c in cuts]
-    blocks = [(i, j, k) for i in range(len(cuts[0]) - 1) for j in range(len(cuts[1]) - 1)
-              for k in range(len(cuts[2]) - 1)]
-
-    def bounds(b):
-        return ([int(cuts[a][b[a]]) for a in range(3)], [int(cuts[a][b[a] + 1]) for a in range(3)])
-
-    say = progress or (lambda count: None)
-    if count is None and fraction is None and tol_inf is None:
-        raise ValueError("decimate_in_blocks needs a stop: count, fraction or tol_inf")
-    target = None
-    if count is not None or fraction is not None:
-        target = int(count) if count is not None else count_for_fraction(fraction, N)
-
-    _SHARED.clear()
-    _SHARED.update(vol=vol, bounds=[bounds(b) for b in blocks], seam_axes=seam_axes, tol_inf=tol_inf,
-                   fraction=0.0 if target is None else target / N)
-
-    # pass 1: every block's costs, cheapest first, as running maxima
-    runmax, inner = [], []
-    if target is not None:
-        for keys, n_inner in _map(_block_costs, range(len(blocks)), threads):
-            runmax.append(np.maximum.accumulate(keys) if len(keys) else keys)
-            inner.append(n_inner)
-    tau = _threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
-
-    # pass 2: every block to tau (the prefix of its sequence)
-    _SHARED["tau"] = tau
-    tets, owner, isv = [], np.full(N, -1, np.int64), np.ones(N, bool)
-    base = 0
-    for i, (T, inside, rows, n_removed) in enumerate(_map(_block_mesh, range(len(blocks)), threads)):
-        if runmax and n_removed != int(np.searchsorted(runmax[i], tau, side="right")):
-            raise RuntimeError(f"block {blocks[i]} did not repeat its recorded collapses")
-        owner[inside] = base + rows
-        isv[inside] = False
-        tets.append(T)
-        base += len(T)
-        say(int(isv.sum()))
-    T = np.concatenate(tets)
-    del tets
-    stats = {"blocks": len(blocks), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
-
-    # the seams, region by region: every vertex a candidate, down to tau
-    cand = isv.copy()
-    for shift in SEAM_SHIFTS:
-        if not cand.any():
-            break
-        surplus = None if target is None else int(isv.sum()) - target  # never below the count
-        if surplus is not None and surplus <= 0:
-            break
-        T, owner, isv, cand, st = _region_pass(vol, T, owner, isv, cand, round(shift * block),
-                                               REGION * int(block), tau, surplus, tol_inf, threads)
-        stats["seam_passes"].append(st)
-        say(int(isv.sum()))
-    stats["after_seams"] = int(isv.sum())
-    # the quota step: the vertices over the target, the cheapest across the regions
-    for shift in QUOTA_SHIFTS if target is not None else ():
-        surplus = int(isv.sum()) - target
-        if surplus <= 0:
-            break
-        T, owner, isv, _, st = _region_pass(vol, T, owner, isv, isv.copy(), round(shift * block),
-                                            REGION * int(block), INF, surplus, tol_inf, threads)
-        stats["seam_passes"].append(st)
-        say(int(isv.sum()))
-    stats["vertices"] = int(isv.sum())
-    owner[isv] = -1
-    _SHARED.clear()
-    return {"vertices": np.flatnonzero(isv), "tets": T, "ptet": owner, "tau": float(tau), "stats": stats}
-
-
-#: What the workers of a run read (set before they fork, so that nothing large is sent to them)
-_SHARED = {}
-
-
-def _map(fn, items, threads):
-    """``fn`` over ``items``, in order: here, or in ``threads`` forked processes that read
-    :data:`_SHARED` as it was when they started."""
-    items = list(items)
-    if threads <= 1 or len(items) <= 1:
-        yield from map(fn, items)
-        return
-    import multiprocessing
-    from concurrent.futures import ProcessPoolExecutor
-
-    with ProcessPoolExecutor(max_workers=min(threads, len(items)),
-                             mp_context=multiprocessing.get_context("fork")) as pool:
-        yield from pool.map(fn, items)
-
-
-def _block_run(i, key_max):
-    """Block i decimated lazily down to its seam points and twice its share of the target,
-    then with exact costs (as :func:`trivsel.decimation.reduce_by_collapse` does near its
-    stop), until the first collapse that costs more than ``key_max``: the same sequence
-    every time."""
-    sh = _SHARED
-    S, gid, seam = _block_state(sh["vol"], *sh["bounds"][i], sh["seam_axes"])
-    dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=S)
-    share = (~seam).sum() * sh["fraction"]  # its locked seam points stay
+def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max):
+    """The block decimated lazily down to its seam points and twice its share of the target
+    (``fraction`` of its points off the seams), then with exact costs (as
+    :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until the first
+    collapse that costs more than ``key_max``: the same sequence every time."""
+    S, gid, seam = _block_state(values, lo, shape, seam_axes)
+    dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
+    share = (~seam).sum() * fraction  # its locked seam points stay
     if dec.run(int(seam.sum() + EXACT_WITHIN * share), key_max=key_max) == 0:
         dec.lazy = False
         dec.run(0, key_max=key_max)
     return dec, gid, seam
 
 
-def _block_costs(i):
-    """Block i's collapse costs in the order made, and its number of points off the seams."""
-    dec, gid, seam = _block_run(i, INF)
-    return dec.S.hkey[dec.removed()].copy(), int((~seam).sum())
+def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None):
+    """Pass 1 on one block: the running maxima of its collapse costs in the order made, and
+    its number of points off the seams."""
+    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF)
+    keys = dec.S.hkey[dec.removed()]
+    return np.maximum.accumulate(keys) if len(keys) else keys.copy(), int((~seam).sum())
 
 
-def _block_mesh(i):
-    """Block i down to the threshold: its tetrahedra (global point indices), the points inside
-    them with their rows, and the number of collapses."""
-    dec, gid, seam = _block_run(i, _SHARED["tau"])
+def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None):
+    """Pass 2 on one block, down to the threshold ``tau``: its tetrahedra (global point
+    indices), the points inside them with their rows, and the number of collapses."""
+    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, tau)
     row = np.cumsum(dec.S.alive) - 1
     inside = np.flatnonzero(~dec.S.isv)
     return gid[dec.tetrahedra()], gid[inside], row[dec.S.ptet[inside]], len(dec.removed())
 
 
-def _threshold(runmax, inner, seam_points, target):
+def threshold(runmax, inner, seam_points, target):
     """The cost threshold tau at which the blocks' points left (their sequences' running
     maxima cut at tau), plus the seams' points at the blocks' density, come nearest to
     ``target``; inf without a target."""
@@ -259,16 +182,35 @@ def _threshold(runmax, inner, seam_points, target):
     return float(cand[lo])
 
 
-def _region_pass(vol, T, owner, isv, cand, off, size, tau, surplus, tol_inf, threads=1):
-    """Decimate the candidate vertices ``cand`` in the regions of edge ``size`` whose cuts are
-    at ``off + k size``, each down to ``tau`` and, with ``surplus``, the regions together by
-    at most that many vertices, the cheapest (:func:`_quota_cut`): returns the new mesh,
-    owners, vertex flags, the candidates left (not free in any region of this grid) and the
-    pass's counts."""
-    shift = size - off % size
-    dims = (np.asarray(vol.shape, np.int64) - 1 + shift) // size + 1  # regions per axis
+def assemble(N, meshes, runmax=None, names=None):
+    """The blocks' meshes (``(tets, inside, rows, n_removed)`` each, :func:`block_mesh`) as one
+    mesh state: tetrahedra ``T``, each point's row of ``T`` (``owner``, -1 for vertices) and
+    the vertex flags.  With ``runmax``, each block's collapse count is checked against its
+    recorded sequence cut at the threshold (passed as ``runmax[i]``'s count)."""
+    tets, owner, isv = [], np.full(N, -1, np.int64), np.ones(N, bool)
+    base = 0
+    for i, (T, inside, rows, n_removed) in enumerate(meshes):
+        if runmax is not None and n_removed != runmax[i]:
+            raise RuntimeError(f"block {names[i] if names else i} did not repeat its recorded collapses")
+        owner[inside] = base + rows
+        isv[inside] = False
+        tets.append(T)
+        base += len(T)
+    return np.concatenate(tets), owner, isv
+
+
+def pass_plan(shape, T, owner, isv, cand, offset, size):
+    """The regions of one pass: the grid of edge ``size`` cut at ``offset + k size``.  A
+    candidate vertex is free in its region when every tetrahedron around it has its
+    candidates in that region only; a region's tetrahedra are the stars of its free
+    vertices.  Returns a dict: ``free`` (per point), ``left`` (candidates not free, for the
+    next pass), ``order`` (rows of ``T`` by region), ``starts``/``ends`` (each region's run of
+    ``order``), ``region`` (each run's region id in the grid), ``pts``/``pkeys`` (the points
+    inside the regions' tetrahedra, by region), ``row_of`` (a tetrahedron's row in its region),
+    ``nfree`` (free vertices per run) and ``dims`` (regions per axis)."""
+    dims, shift = region_grid(shape, offset, size)
     c = np.flatnonzero(cand)
-    r3 = (np.stack(np.unravel_index(c, vol.shape), axis=1) + shift) // size  # the candidates' regions per axis
+    r3 = (np.stack(np.unravel_index(c, shape), axis=1) + shift) // size  # the candidates' regions per axis
     rid = np.full(len(isv), -1, np.int64)
     rid[c] = (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2]
     del c, r3
@@ -284,7 +226,8 @@ def _region_pass(vol, T, owner, isv, cand, off, size, tau, surplus, tol_inf, thr
     order = np.flatnonzero(treg >= 0)
     order = order[np.argsort(treg[order], kind="stable")]
     starts = np.flatnonzero(np.r_[True, np.diff(treg[order]) != 0]) if len(order) else np.zeros(0, np.int64)
-    ends = np.r_[starts[1:], len(order)]
+    ends = np.r_[starts[1:], len(order)].astype(np.int64)
+    region = treg[order][starts] if len(order) else np.zeros(0, np.int64)
     # the points inside each region's tetrahedra, by region
     pts = np.flatnonzero(~isv)
     pts = pts[treg[owner[pts]] >= 0]
@@ -293,87 +236,247 @@ def _region_pass(vol, T, owner, isv, cand, off, size, tau, surplus, tol_inf, thr
     row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
     for s, e in zip(starts, ends):
         row_of[order[s:e]] = np.arange(e - s)
-    _SHARED["region"] = dict(vol=vol, T=T, owner=owner, free=free, order=order, starts=starts, ends=ends,
-                             treg=treg, pts=pts, pkeys=pkeys, row_of=row_of, quota=None, tau=tau, tol_inf=tol_inf,
-                             costs=False)
-    if surplus is not None:
-        _SHARED["region"]["quota"] = _quota_cut(rid, free, treg, order, starts, surplus, threads,
-                                                share_cap=tau == INF)
+    nfree = np.bincount(np.searchsorted(region, rid[free]), minlength=len(starts))
+    return {"free": free, "left": cand & blocked, "order": order, "starts": starts, "ends": ends, "region": region,
+            "pts": pts, "pkeys": pkeys, "row_of": row_of, "nfree": nfree, "dims": dims}
+
+
+def region_input(plan, T, owner, k):
+    """Run ``k`` of a pass (:func:`pass_plan`) as a mesh of its own: ``local`` (global point
+    indices: its vertices first, then the points inside its tetrahedra), ``tets`` (local
+    indices), ``located`` (each inside point's tetrahedron, -1 for vertices) and ``locked``
+    (the vertices that are not free, which stay)."""
+    rows = plan["order"][plan["starts"][k]:plan["ends"][k]]
+    reg = plan["region"][k]
+    a, z = np.searchsorted(plan["pkeys"], reg, side="left"), np.searchsorted(plan["pkeys"], reg, side="right")
+    inside = plan["pts"][a:z]
+    tg = T[rows]
+    verts = np.unique(tg)
+    local = np.concatenate([verts, inside])  # vertices first, then the points inside
+    order_local = np.argsort(local)
+    tl = order_local[np.searchsorted(local[order_local], tg)]
+    located = np.full(len(local), -1, np.int64)
+    located[len(verts):] = plan["row_of"][owner[inside]]
+    return {"local": local, "tets": tl, "located": located, "locked": ~plan["free"][local]}
+
+
+def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False):
+    """Decimate one region (:func:`region_input`; ``values`` at its ``local`` points) on the
+    grid's lattice (exact integer predicates), its free vertices the only ones that move, down
+    to ``tau`` and by at most ``quota`` vertices.  With ``costs``, the running maxima of its
+    collapse costs in the order made; else the points it removed, its new tetrahedra, and the
+    points inside them with their rows (global indices)."""
+    local = inp["local"]
+    St = new_mesh_state(np.stack(np.unravel_index(local, shape), axis=1), inp["tets"],
+                        np.asarray(values, np.float64), located=inp["located"], key="sse", lazy=False)
+    St.lock[inp["locked"]] |= LOCK_ALL
+    dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
+    dec.run(0 if quota is None else dec.n_vertices - int(quota), key_max=tau)
+    if costs:
+        keys = dec.S.hkey[dec.removed()]
+        return np.maximum.accumulate(keys) if len(keys) else keys.copy()
+    if quota is not None and len(dec.removed()) != quota:
+        raise RuntimeError("a region did not repeat its recorded collapses")
+    alive_row = np.cumsum(dec.S.alive) - 1
+    nonv = np.flatnonzero(~dec.S.isv)
+    return local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
+
+
+def cost_caps(plan, surplus, share_cap):
+    """The most collapses each region records for the quota cut: all its free vertices, or
+    with ``share_cap`` (the quota passes, no threshold) at most twice its share of
+    ``surplus`` by free vertices."""
+    nfree = plan["nfree"]
+    if not share_cap:
+        return nfree
+    return np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16)
+
+
+def cut_quota(runmax, surplus):
+    """How many vertices each region removes, ``surplus`` in all at most: the ``surplus``
+    cheapest of the regions' recorded costs (their running maxima), ties by region: one
+    threshold across the regions, as across the blocks, so each region's count is a prefix
+    of its own sequence."""
+    value = np.concatenate(list(runmax) + [np.zeros(0)])
+    region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
+    take = np.lexsort((region, value))[:surplus]
+    return np.bincount(region[take], minlength=len(runmax))
+
+
+def merge_pass(T, owner, isv, plan, results):
+    """The mesh after a pass: every region's tetrahedra replaced by its new ones
+    (``results[k]``, :func:`region_decimate`, for run ``k`` of ``plan``).  Returns ``T``,
+    ``owner``, ``isv`` and the number of points removed."""
     keep = np.ones(len(T), bool)
-    new_T, new_owner_pts, new_owner_rows = [], [], []
+    new_T, new_pts, new_rows = [], [], []
     isv = isv.copy()
     removed = base = 0
-    for ri, (rem, nt, nonv, rows) in enumerate(_map(_region_work, range(len(starts)), threads)):
+    for k, (rem, nt, nonv, rows) in enumerate(results):
         removed += len(rem)
         isv[rem] = False
-        new_owner_pts.append(nonv)
-        new_owner_rows.append(base + rows)
+        new_pts.append(nonv)
+        new_rows.append(base + rows)
         new_T.append(nt)
         base += len(nt)
-        keep[order[starts[ri]:ends[ri]]] = False
-    del _SHARED["region"]
+        keep[plan["order"][plan["starts"][k]:plan["ends"][k]]] = False
     kept_rows = np.cumsum(keep) - 1
     owner = owner.copy()
     moved = ~isv & (owner >= 0)
     owner[moved] = kept_rows[owner[moved]]  # points of unchanged tetrahedra: their new rows
     nkeep = int(keep.sum())
     T2 = np.concatenate([T[keep]] + new_T) if new_T else T[keep]
-    for p, r in zip(new_owner_pts, new_owner_rows):
+    for p, r in zip(new_pts, new_rows):
         owner[p] = nkeep + r
-    left = cand & blocked
-    return T2, owner, isv, left, {"offset": off, "regions": len(starts), "free": int(free.sum()),
-                                   "removed": removed, "not_free": int(left.sum())}
+    return T2, owner, isv, removed
 
 
-def _quota_cut(rid, free, treg, order, starts, surplus, threads, share_cap):
-    """How many vertices each region of a pass removes, at most ``surplus`` in all: each region
-    records the costs of its cheapest collapses (exact queue, down to the pass's threshold;
-    with ``share_cap``, at most twice its share of ``surplus`` by free vertices), and the
-    ``surplus`` cheapest of all, in their running maxima, are taken (one threshold across the
-    regions, as across the blocks: each region's count is a prefix of its own sequence)."""
-    nfree = np.bincount(np.searchsorted(treg[order][starts], rid[free]), minlength=len(starts))
+def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, threads=1, progress=None):
+    """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
+
+    Stops at ``count`` vertices (or ``fraction`` of the points; above it only where too few
+    vertices are free in any region), or where no collapse keeps every residual within
+    ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
+    C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
+    every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
+    threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
+    count after every block and every pass.  ``threads`` processes decimate blocks, and the
+    regions of a pass, side by side (forked: the same results as one).  The stages are the
+    functions the jobs of ``trivsel blocks --method decimate`` call (:mod:`trivsel.blocks.decimate`),
+    so both give the same mesh.
+    """
+    vol = np.asarray(volume)
+    shape = vol.shape
+    N = int(np.prod(shape))
+    cuts, bounds = block_list(shape, block)
+    seam_axes = [c[1:-1] for c in cuts]
+    say = progress or (lambda count: None)
+    if count is None and fraction is None and tol_inf is None:
+        raise ValueError("decimate_in_blocks needs a stop: count, fraction or tol_inf")
+    target = None
+    if count is not None or fraction is not None:
+        target = int(count) if count is not None else count_for_fraction(fraction, N)
+
+    _SHARED.clear()
+    _SHARED.update(vol=vol, bounds=bounds, seam_axes=seam_axes, tol_inf=tol_inf,
+                   fraction=0.0 if target is None else target / N)
+
+    # pass 1: every block's costs, cheapest first, as running maxima
+    runmax, inner = [], []
+    if target is not None:
+        for r, n_inner in _map(_block_costs, range(len(bounds)), threads):
+            runmax.append(r)
+            inner.append(n_inner)
+    tau = threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
+
+    # pass 2: every block to tau (the prefix of its sequence)
+    _SHARED["tau"] = tau
+
+    def meshes():
+        left = N
+        for m in _map(_block_mesh, range(len(bounds)), threads):
+            left -= len(m[1])
+            say(left)
+            yield m
+
+    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
+    T, owner, isv = assemble(N, meshes(), counts, [tuple(lo) for lo, _ in bounds])
+    stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
+
+    # the seams, region by region (every vertex a candidate, down to tau); then the quota
+    # passes: the vertices over the target, the cheapest across the regions
+    cand = isv.copy()
+    for kind, offset in passes(int(block)):
+        if kind == "quota" and "after_seams" not in stats:
+            stats["after_seams"] = int(isv.sum())
+        if kind == "quota" and target is None:
+            break
+        c = cand if kind == "seams" else isv.copy()
+        surplus = None if target is None else int(isv.sum()) - target  # never below the count
+        if not c.any() or (surplus is not None and surplus <= 0):
+            continue
+        T, owner, isv, left, st = _region_pass(shape, T, owner, isv, c, offset, REGION * int(block),
+                                               tau if kind == "seams" else INF, surplus, tol_inf, threads)
+        if kind == "seams":
+            cand = left
+        stats["seam_passes"].append(st)
+        say(int(isv.sum()))
+    stats.setdefault("after_seams", int(isv.sum()))
+    stats["vertices"] = int(isv.sum())
+    owner[isv] = -1
+    _SHARED.clear()
+    return {"vertices": np.flatnonzero(isv), "tets": T, "ptet": owner, "tau": float(tau), "stats": stats}
+
+
+#: What the workers of a run read (set before they fork, so that nothing large is sent to them)
+_SHARED = {}
+
+
+def _map(fn, items, threads):
+    """``fn`` over ``items``, in order: here, or in ``threads`` forked processes that read
+    :data:`_SHARED` as it was when they started."""
+    items = list(items)
+    if threads <= 1 or len(items) <= 1:
+        yield from map(fn, items)
+        return
+    import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=min(threads, len(items)),
+                             mp_context=multiprocessing.get_context("fork")) as pool:
+        yield from pool.map(fn, items)
+
+
+def _block_values(i):
+    lo, hi = _SHARED["bounds"][i]
+    return _SHARED["vol"][lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1], lo
+
+
+def _block_costs(i):
+    values, lo = _block_values(i)
+    return block_costs(values, lo, _SHARED["vol"].shape, _SHARED["seam_axes"], fraction=_SHARED["fraction"],
+                       tol_inf=_SHARED["tol_inf"])
+
+
+def _block_mesh(i):
+    values, lo = _block_values(i)
+    return block_mesh(values, lo, _SHARED["vol"].shape, _SHARED["seam_axes"], fraction=_SHARED["fraction"],
+                      tau=_SHARED["tau"], tol_inf=_SHARED["tol_inf"])
+
+
+def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1):
+    """One pass over the regions of edge ``size`` cut at ``offset + k size``
+    (:func:`pass_plan`), each decimated down to ``tau`` and, with ``surplus``, the regions
+    together by at most that many vertices, the cheapest (:func:`cut_quota`): returns the
+    new mesh, owners, vertex flags, the candidates left (not free in any region of this
+    grid) and the pass's counts."""
+    plan = pass_plan(shape, T, owner, isv, cand, offset, size)
+    runs = range(len(plan["starts"]))
+    _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None)
+    if surplus is not None:
+        sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
+        sh["quota"] = cut_quota(list(_map(_region_costs, runs, threads)), surplus)
+    T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, _map(_region_apply, runs, threads))
+    del _SHARED["region"]
+    return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
+                                            "removed": removed, "not_free": int(plan["left"].sum())}
+
+
+def _region(k):
     sh = _SHARED["region"]
-    sh["quota"] = (np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16) if share_cap
-                   else nfree)
-    sh["costs"] = True
-    runmax = [np.maximum.accumulate(k) if len(k) else k for k in _map(_region_work, range(len(starts)), threads)]
-    sh["costs"] = False
-    value = np.concatenate(runmax + [np.zeros(0)])
-    region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
-    take = np.lexsort((region, value))[:surplus]  # by cost, ties by region: a prefix of every region's sequence
-    return np.bincount(region[take], minlength=len(runmax))
+    inp = region_input(sh["plan"], sh["T"], sh["owner"], k)
+    return sh, inp, _SHARED["vol"].reshape(-1)[inp["local"]]
 
 
-def _region_work(ri):
-    """Region ri of the pass in :data:`_SHARED`: its tetrahedra and the points inside them as
-    a mesh (on the grid's lattice: exact integer predicates), its free vertices the only ones
-    that move, decimated to the threshold or by its quota.  Returns the points it removed,
-    its new tetrahedra, and the points inside them with their rows (global indices)."""
-    sh = _SHARED["region"]
-    rows = sh["order"][sh["starts"][ri]:sh["ends"][ri]]
-    reg = sh["treg"][rows[0]]
-    a, z = np.searchsorted(sh["pkeys"], reg, side="left"), np.searchsorted(sh["pkeys"], reg, side="right")
-    inside = sh["pts"][a:z]
-    tg = sh["T"][rows]
-    verts = np.unique(tg)
-    local = np.concatenate([verts, inside])  # vertices first, then the points inside
-    order_local = np.argsort(local)
-    tl = order_local[np.searchsorted(local[order_local], tg)]
-    located = np.full(len(local), -1, np.int64)
-    located[len(verts):] = sh["row_of"][sh["owner"][inside]]
-    St = new_mesh_state(np.stack(np.unravel_index(local, sh["vol"].shape), axis=1), tl, np.asarray(sh["vol"].reshape(-1)[local], np.float64),
-                        located=located, key="sse", lazy=False)
-    St.lock[~sh["free"][local]] |= LOCK_ALL
-    dec = Decimation(None, None, None, tol_inf=sh["tol_inf"], state=St)
-    quota = sh["quota"]
-    dec.run(0 if quota is None else dec.n_vertices - int(quota[ri]), key_max=sh["tau"])
-    if sh["costs"]:
-        return dec.S.hkey[dec.removed()].copy()
-    if quota is not None and len(dec.removed()) != quota[ri]:
-        raise RuntimeError(f"region {ri} did not repeat its recorded collapses")
-    alive_row = np.cumsum(dec.S.alive) - 1
-    nonv = np.flatnonzero(~dec.S.isv)
-    return local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
+def _region_costs(k):
+    sh, inp, values = _region(k)
+    return region_decimate(inp, _SHARED["vol"].shape, values, tau=sh["tau"], tol_inf=sh["tol_inf"],
+                           quota=sh["caps"][k], costs=True)
+
+
+def _region_apply(k):
+    sh, inp, values = _region(k)
+    return region_decimate(inp, _SHARED["vol"].shape, values, tau=sh["tau"], tol_inf=sh["tol_inf"],
+                           quota=None if sh["quota"] is None else sh["quota"][k])
 
 
 def point_weights(shape, tets, ptet):

@@ -54,7 +54,7 @@ def _atomic_write(path, write, overwrite):
     return path
 
 
-def _piece_grid(points, tets, values, original_index):
+def _piece_grid(points, tets, values, original_index, arrays=None):
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise InputError(f"points must be a finite (M, 3) array, got shape {p.shape}")
@@ -70,10 +70,16 @@ def _piece_grid(points, tets, values, original_index):
         raise InputError(f"values must be {m} real numbers (one per point), got {v.dtype} of shape {v.shape}")
     if ids.shape != (m,) or ids.dtype.kind not in "iu":
         raise InputError(f"original_index must be {m} integers (one per point), got {ids.dtype} of shape {ids.shape}")
-    return tetra_grid(p, t, {"value": v.astype(float), "original_index": ids.astype(np.int64)})
+    extra = {}
+    for name, a in (arrays or {}).items():
+        a = np.asarray(a)
+        if a.shape != (m,) or a.dtype.kind not in "iuf":
+            raise InputError(f"point array {name!r} must be {m} real numbers, got {a.dtype} of shape {a.shape}")
+        extra[name] = a.astype(float)
+    return tetra_grid(p, t, {"value": v.astype(float), **extra, "original_index": ids.astype(np.int64)})
 
 
-def write_piece(path, points, tets, values, original_index, *, overwrite: bool = False) -> Path:
+def write_piece(path, points, tets, values, original_index, *, overwrite: bool = False, arrays=None) -> Path:
     """Write one piece: a ``.vtu`` of VTK_TETRA cells.
 
     Parameters
@@ -90,8 +96,10 @@ def write_piece(path, points, tets, values, original_index, *, overwrite: bool =
         Point array ``original_index`` (int64): each point's id in the whole input.
     overwrite : bool
         Replace an existing file (refused otherwise).
+    arrays : dict of str to (M,) float, optional
+        More point arrays (``fit``, say).
     """
-    grid = _piece_grid(points, tets, values, original_index)
+    grid = _piece_grid(points, tets, values, original_index, arrays)
     return _atomic_write(path, lambda tmp: write_vtu(grid, tmp), overwrite)
 
 

@@ -192,9 +192,13 @@ class Volume:
         r = check_region(region, self.shape)
         ii, jj, kk = np.meshgrid(*(np.arange(a, b, dtype=np.int64) for a, b in r), indexing="ij")
         ijk = np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1)
+        return self.coordinates(ijk), ijk
+
+    def coordinates(self, ijk):
+        """The coordinates ``(M, 3)`` of grid points ``ijk`` ``(M, 3)``, bit for bit those of the
+        whole grid."""
         # the same expression as grid_from_array's (or sample_grid's), so the same rounding
-        points = self.origin + ijk * self.spacing if self._coords is None else self._coords(ijk)
-        return points, ijk
+        return self.origin + ijk * self.spacing if self._coords is None else self._coords(ijk)
 
     def file_ids(self, ijk) -> np.ndarray:
         """The input's point id of each grid point ``ijk`` (global): its voxel's Fortran-order

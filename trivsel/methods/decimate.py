@@ -28,8 +28,8 @@ NAME = "decimate"
 DEFAULTS = {"criterion": "sse"}
 #: The collapses start from the full grid's Kuhn split; a prescribed boundary is not supported.
 PRESCRIBED_BOUNDARY = False
-#: Its own way through blocks, for the refusal of ``trivsel blocks --method decimate``.
-IN_BLOCKS = "decimate in one process, a block at a time: trivsel reduce INPUT --block B"
+#: Its own stages in blocks (``trivsel blocks --method decimate``), which ``--block`` runs in one process.
+BLOCK_STAGES = "trivsel.blocks.decimate"
 #: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
 #: corner lists, the buckets and the queue), and more with fitted values (the points'
 #: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
@@ -67,6 +67,14 @@ def memory(data, options):
     if not data.is_grid and data.tets is None:
         need.append((DELAUNAY_BYTES_PER_POINT * float(N), f"the Delaunay tetrahedra of {N} scattered points"))
     return need
+
+
+def block_stages():
+    """The stages of ``decimate`` in blocks (:mod:`trivsel.decimation.blocked`): what the jobs of
+    ``trivsel blocks --method decimate`` (``BLOCK_STAGES``) and ``--block`` run."""
+    from ..decimation import blocked
+
+    return blocked
 
 
 def compile_kernels(part=None):

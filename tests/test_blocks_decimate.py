@@ -1,0 +1,128 @@
+"""``trivsel blocks --method decimate``: the stages of ``trivsel reduce --block`` as Snakemake
+jobs (:mod:`trivsel.blocks.decimate`) give the same mesh as one process, with the count, the
+errors and the fitted values of that mesh, as a conforming tetrahedralisation in pieces."""
+
+import json
+
+import numpy as np
+import pytest
+
+from trivsel.blocks import check_tetrahedra
+from trivsel.cli import main
+from trivsel.data import sample_grid
+from trivsel.decimation.blocked import decimate_in_blocks, point_weights
+
+pytest.importorskip("snakemake")
+
+
+def _read(path):
+    import pyvista as pv
+
+    m = pv.read(path)
+    ids = np.asarray(m.point_data["original_index"])
+    return m, ids, ids[np.asarray(m.cells).reshape(-1, 5)[:, 1:]]
+
+
+def _same_tets(a, b):
+    return np.array_equal(np.unique(np.sort(a, axis=1), axis=0), np.unique(np.sort(b, axis=1), axis=0))
+
+
+def test_the_jobs_give_the_mesh_of_one_process_with_its_errors(tmp_path, capsys):
+    import pyvista as pv
+
+    n, block, count = 40, 16, 3000
+    vol = sample_grid(4, n).values.reshape((n + 1,) * 3)
+    out = tmp_path / "run"
+    argv = ["blocks", "--function", "4", "--n", str(n), "--block", str(block), "--method", "decimate", "--count",
+            str(count), "--out", str(out), "-c", "2"]
+    assert main(argv) == 0
+    assert "3000 of 68921 points" in capsys.readouterr().err
+    ref = decimate_in_blocks(vol, block, count=count)
+    m, ids, tets = _read(out / "mesh.vtu")
+    assert np.array_equal(np.sort(ids), ref["vertices"]) and _same_tets(tets, ref["tets"])
+    check_tetrahedra(vol.shape, tets)
+    assert np.allclose(m.point_data["value"], vol.reshape(-1)[ids])
+    # the pieces hold every tetrahedron once
+    whole = pv.read(out / "mesh.pvtu")
+    assert whole.n_cells == len(tets) and len(list((out / "pieces").glob("*.vtu"))) == 27
+    verts, w = point_weights(vol.shape, ref["tets"], ref["ptet"])
+    f = vol.reshape(-1)
+    r = f - np.einsum("ij,ij->i", w, f[verts])
+    s = json.loads((out / "summary.json").read_text())
+    assert s["vertices"] == count and s["tetrahedra"] == len(tets) and s["stopped"] == "the count was reached"
+    assert s["E_rms"] == pytest.approx(np.sqrt(np.mean(r**2)), rel=1e-12)
+    assert s["E_inf"] == pytest.approx(np.abs(r).max(), rel=1e-12)
+    # a rerun has nothing to do; another count in the same folder is refused
+    assert main(argv) == 0
+    assert "nothing to run" in capsys.readouterr().err
+    assert main(argv[:-5] + ["2000", "--out", str(out), "-c", "2"]) == 2
+    assert "another configuration (count" in capsys.readouterr().err
+
+
+def test_a_nifti_file_fraction_and_fitted_values_match_reduce_with_block(tmp_path, capsys):
+    """A real-looking input (an anisotropic NIfTI volume, read by region): the blocks' mesh is
+    ``trivsel reduce FILE --block B``'s, with the same points, values and fitted values."""
+    import nibabel as nib
+
+    rng = np.random.default_rng(5)
+    g = np.stack(np.indices((29, 26, 23)), axis=-1) / 20.0
+    vol = np.sin(3 * g[..., 0]) * np.cos(2 * g[..., 1]) + (g[..., 2] > 0.6) + 0.05 * rng.standard_normal(g.shape[:3])
+    path = tmp_path / "scan.nii.gz"
+    nib.save(nib.Nifti1Image(vol.astype(np.float32), np.diag([0.9, 1.1, 2.5, 1.0])), path)
+    assert main(["reduce", str(path), "--method", "decimate", "--block", "8", "--fractions", "0.05", "--values",
+                 "data", "fit", "--out", str(tmp_path / "one")]) == 0
+    out = tmp_path / "run"
+    assert main(["blocks", str(path), "--block", "8", "--method", "decimate", "--fraction", "0.05", "--values", "data",
+                 "fit", "--out", str(out), "-c", "2"]) == 0
+    err = capsys.readouterr().err
+    (one,) = (tmp_path / "one").glob("mesh_*.vtu")
+    m1, ids1, tets1 = _read(one)
+    m2, ids2, tets2 = _read(out / "mesh.vtu")
+    assert np.array_equal(np.sort(ids1), ids2) and _same_tets(tets1, tets2)
+    at = np.argsort(ids1)
+    assert np.array_equal(np.asarray(m1.points)[at], np.asarray(m2.points))
+    assert np.array_equal(np.asarray(m1.point_data["value"])[at], np.asarray(m2.point_data["value"]))
+    assert np.allclose(np.asarray(m1.point_data["fitted_value"])[at], m2.point_data["fitted_value"], atol=1e-9)
+    s = json.loads((out / "summary.json").read_text())
+    errors = {row.split(",")[5]: row.split(",") for row in (tmp_path / "one" / "errors.csv").read_text().split()[1:]}
+    assert s["E_rms"] == pytest.approx(float(errors["data"][8]), rel=1e-9)
+    assert s["fit"]["E_rms"] == pytest.approx(float(errors["fit"][8]), rel=1e-6)
+    assert s["fit"]["E_rms"] < s["E_rms"]
+    assert f"fitted values: E_rms {s['fit']['E_rms']:.4g}" in err
+
+
+def test_a_tolerance_stop_holds_across_the_seams(tmp_path):
+    n, block, tol = 24, 8, 0.02
+    vol = sample_grid(4, n).values.reshape((n + 1,) * 3)
+    out = tmp_path / "run"
+    assert main(["blocks", "--function", "4", "--n", str(n), "--block", str(block), "--method", "decimate",
+                 "--tol-inf", str(tol), "--no-merged", "--out", str(out), "-c", "2"]) == 0
+    ref = decimate_in_blocks(vol, block, tol_inf=tol)
+    import pyvista as pv
+
+    whole = pv.read(out / "mesh.pvtu")
+    ids = np.asarray(whole.point_data["original_index"])
+    tets = ids[np.asarray(whole.cells).reshape(-1, 5)[:, 1:]]
+    assert _same_tets(tets, ref["tets"]) and not (out / "mesh.vtu").exists()
+    s = json.loads((out / "summary.json").read_text())
+    assert s["vertices"] == len(ref["vertices"]) and s["E_inf"] <= tol
+    assert s["stopped"] == "no collapse was left that keeps every residual within tol_inf"
+
+
+def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd):
+    from trivsel.blocks import decimate as D
+
+    full = {"block": 64, "values": ["data", "fit"], "plan": {"shape": [197, 233, 189]}}
+    plan = D.plan_decimation((197, 233, 189), 64)
+    assert plan.counts == (3, 4, 3)
+    st = D.Stages({"block": 64, "fraction": 0.05, "plan": plan.to_dict()}, plan)
+    assert [k for k, _ in st.passes] == ["seams"] * 3 + ["quota"] * 4 and st.target() == 433764
+    assert D.Stages({"block": 64, "tol_inf": 1.0, "plan": plan.to_dict()}, plan).passes == st.passes[:3]
+    # a block job holds one block's decimation; a region job one region's (2 x 2 x 2 blocks)
+    mb = {k: D.job_resources(full, plan, k)[0] for k in ("costs", "rcosts", "step", "finish")}
+    assert mb["costs"] < mb["rcosts"] < 2600 and mb["rcosts"] > 2000
+    assert D.job_resources({**full, "block": 32}, D.plan_decimation(plan.shape, 32), "rcosts")[0] < 700
+    # a dry run lists the jobs and writes nothing
+    assert main(["blocks", "--function", "4", "--n", "16", "--block", "8", "--method", "decimate", "--count", "100",
+                 "-n", "--out", str(tmp_path / "dry")]) == 0
+    assert "step_6" in capfd.readouterr().out and not (tmp_path / "dry").exists()

@@ -1,0 +1,513 @@
+"""``trivsel blocks --method decimate``: the stages of :mod:`trivsel.decimation.blocked` as
+jobs that each read only their block or region of the volume.
+
+The stages are the functions ``trivsel reduce --block B`` runs in one process, so both give
+the same mesh; here each is a job of the workflow ``trivsel/blocks/decimate.smk``, and what
+one stage hands the next is a file in the run's folder::
+
+    costs/X.npz        pass 1, the blocks of x-slab X one after the other: each block's
+                       recorded collapse costs (running maxima) and its points off the seams
+    tau.json           the cost threshold cut across every block's sequence
+    meshes/X.npz       pass 2, each block of slab X down to the threshold: its tetrahedra,
+                       the points inside them and their rows
+    passes/P/state.npz the whole mesh before pass P: tetrahedra, each point's tetrahedron,
+                       vertex flags, the seam candidates (a step job: 9 bytes a point and
+                       32 a tetrahedron, not a decimation)
+    passes/P/in/R.npz  the regions of x-slab R of pass P, each as a mesh of its own
+    passes/P/costs/R.npz, passes/P/quota.npz
+                       each region's recorded costs, and the collapses each makes: one
+                       threshold across the regions (runs with a count only)
+    passes/P/out/R.npz each region of slab R decimated: the points it removed, its new
+                       tetrahedra, the points inside them
+    merged/            the last step: mesh.vtu (vertices sorted by the input's point id),
+                       one piece per block (pieces/, mesh.pvtu), summary.json
+
+A block job reads its blocks' samples, a region job its regions' points (the bounding box
+of each region's mesh); only the step, cut and last jobs hold arrays over the whole grid
+(owners and flags per point, the tetrahedra), never a decimation of it.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from ..methods import get_method
+from . import JOB_BASE_BYTES, Plan, _atomic_savez, _atomic_write_text, _open, item_name, publish_results, read_config
+
+__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "job_resources", "check_job_memory"]
+
+#: The stages themselves, from the method (through the registry, as every block stage reaches a method)
+B = get_method("decimate").block_stages()
+INF = np.inf
+#: The workflow of these stages
+SNAKEFILE = Path(__file__).with_name("decimate.smk")
+#: What a value of ``values`` may be
+VALUES = ("data", "fit")
+
+#: Bytes per point of a block's or a region's decimation (as ``trivsel reduce`` estimates it)
+DECIMATION_BYTES_PER_POINT = 1000
+#: Bytes per grid point of a step job (owners, flags, the candidates' regions) and per
+#: tetrahedron (rows, their regions)
+STEP_BYTES_PER_POINT = 60
+STEP_BYTES_PER_TET = 100
+#: Bytes per grid point of the last job: the points' weights and residuals, with fitted
+#: values the normal equations too
+FINISH_BYTES_PER_POINT = 120
+FIT_BYTES_PER_POINT = 150
+
+
+def make_config(config, shape):
+    """The keys of a run's configuration that ``decimate`` adds (the stop and the values), checked:
+    ``count`` (8 to the points) or ``fraction`` (in (0, 1]), and/or ``tol_inf``; ``values``, a list
+    of ``data`` and ``fit``.  Also the plan (the blocks of :func:`plan_decimation`)."""
+    from ..exceptions import InputError, shown
+
+    N = int(np.prod(shape))
+    block = config.get("block")
+    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 2:
+        raise InputError(f"block must be a whole number of grid intervals, 2 or more; got {shown(block)}")
+    count, fraction = config.get("count"), config.get("fraction")
+    if count is not None and fraction is not None:
+        raise InputError("give one of count and fraction, not both")
+    if count is not None and (isinstance(count, bool) or not isinstance(count, (int, np.integer))
+                              or not 8 <= count <= N):
+        raise InputError(f"count must be a whole number from 8 (the box's corners) to the {N} points; "
+                         f"got {shown(count)}")
+    if fraction is not None and (isinstance(fraction, bool) or not isinstance(fraction, (int, float))
+                                 or not 0 < fraction <= 1):
+        raise InputError(f"fraction must be a number in (0, 1]; got {shown(fraction)}")
+    if count is None and fraction is None and config.get("tol_inf") is None:
+        raise InputError("give a stop: --count, --fraction or --tol-inf")
+    values = config.get("values") or ["data"]
+    if isinstance(values, str):
+        values = [values]
+    if not isinstance(values, (list, tuple)) or not values or any(v not in VALUES for v in values) \
+            or len(set(values)) != len(values):
+        raise InputError(f"values must be a list of {' and '.join(VALUES)} (each once); got {shown(values)}")
+    return {"count": None if count is None else int(count), "fraction": None if fraction is None else float(fraction),
+            "values": list(values), "plan": plan_decimation(shape, int(block)).to_dict()}
+
+
+def check_job_memory(full):
+    """One-line InputError when a job of this run needs more memory than is available here (a
+    local run), naming a block size that fits."""
+    from ..exceptions import InputError
+    from ..resources import available_bytes
+
+    avail = available_bytes()
+    if avail is None:
+        return
+    plan = plan_decimation(full["plan"]["shape"], full["block"])
+    kinds = ("costs", "rcosts", "step", "finish")
+    need = {k: job_resources(full, plan, k)[0] * 2**20 for k in kinds}
+    kind = max(need, key=need.get)
+    if need[kind] <= avail:
+        return
+    fits = [b for b in (128, 96, 64, 48, 32, 16) if b < int(full["block"]) and max(
+        job_resources({**full, "block": b}, plan_decimation(plan.shape, b), k)[0] for k in ("costs", "rcosts"))
+        * 2**20 <= avail]
+    fix = (f"use --block {fits[0]}" if fits and kind in ("costs", "rcosts")
+           else "the whole grid's arrays do not fit: run it on a larger machine or a cluster")
+    raise InputError(f"a {kind} job of decimate in blocks of {full['block']} needs about "
+                     f"{need[kind] / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB available: {fix}")
+
+
+def plan_decimation(shape, block) -> Plan:
+    """The blocks of ``decimate`` in blocks (:func:`trivsel.decimation.blocked.block_cuts`)."""
+    return Plan(tuple(int(s) for s in shape),
+                tuple(tuple(int(c) for c in B.block_cuts(int(n), int(block))) for n in shape))
+
+
+class Stages:
+    """The jobs of a run: the x-slabs of blocks, and each pass's kind, offset and x-slabs of
+    regions, from the configuration alone (the workflow's rules are made from it)."""
+
+    def __init__(self, cfg, plan):
+        self.cfg, self.plan = cfg, plan
+        self.block = int(cfg["block"])
+        self.counted = cfg.get("count") is not None or cfg.get("fraction") is not None
+        self.slabs = list(range(plan.counts[0]))
+        self.passes = [(kind, off) for kind, off in B.passes(self.block) if self.counted or kind == "seams"]
+        self.size = B.REGION * self.block
+
+    def target(self):
+        if self.cfg.get("count") is not None:
+            return int(self.cfg["count"])
+        if self.cfg.get("fraction") is not None:
+            from ..selection import count_for_fraction
+
+            return count_for_fraction(float(self.cfg["fraction"]), self.plan.n_points())
+        return None
+
+    def region_dims(self, p):
+        return B.region_grid(self.plan.shape, self.passes[p][1], self.size)[0]
+
+    def region_slabs(self, p):
+        return list(range(int(self.region_dims(p)[0])))
+
+    def blocks_of(self, slab):
+        """The blocks of x-slab ``slab``: their indices in the plan and ``(lo, hi)`` bounds."""
+        nx, ny, nz = self.plan.counts
+        cuts = self.plan.cuts
+        out = []
+        for j in range(ny):
+            for k in range(nz):
+                lo = [cuts[0][slab], cuts[1][j], cuts[2][k]]
+                hi = [cuts[0][slab + 1], cuts[1][j + 1], cuts[2][k + 1]]
+                out.append(((slab * ny + j) * nz + k, lo, hi))
+        return out
+
+    def seam_axes(self):
+        return [np.asarray(c[1:-1], np.int64) for c in self.plan.cuts]
+
+    def fraction(self):
+        t = self.target()
+        return 0.0 if t is None else t / self.plan.n_points()
+
+
+def _read_box(vol, lo, hi):
+    return vol.read(tuple((int(a), int(b) + 1) for a, b in zip(lo, hi)))
+
+
+def _points_values(vol, shape, ids):
+    """The values at global point indices ``ids``, read from their bounding box only."""
+    if not len(ids):
+        return np.zeros(0)
+    ijk = np.stack(np.unravel_index(ids, shape), axis=1)
+    lo, hi = ijk.min(axis=0), ijk.max(axis=0)
+    box = _read_box(vol, lo, hi)
+    return box[tuple((ijk - lo).T)]
+
+
+def _load(path):
+    with np.load(path, allow_pickle=False) as z:
+        return {k: z[k] for k in z.files}
+
+
+def _costs(out, st, slab):
+    vol, shape = _open(st.cfg), st.plan.shape
+    res = {}
+    for i, lo, hi in st.blocks_of(slab):
+        r, n_inner = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(), fraction=st.fraction(),
+                                   tol_inf=st.cfg.get("tol_inf"))
+        res[f"runmax_{i}"], res[f"inner_{i}"] = r, np.int64(n_inner)
+    _atomic_savez(out / "costs" / f"{slab}.npz", **res)
+
+
+def _cut(out, st):
+    runmax, inner = [], []
+    N = st.plan.n_points()
+    target = st.target()
+    if target is not None:
+        for slab in st.slabs:
+            z = _load(out / "costs" / f"{slab}.npz")
+            for i, _, _ in st.blocks_of(slab):
+                runmax.append(z[f"runmax_{i}"])
+                inner.append(int(z[f"inner_{i}"]))
+    tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT)
+    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
+    _atomic_write_text(out / "tau.json", json.dumps({"tau": tau if np.isfinite(tau) else "inf", "target": target,
+                                                     "counts": counts}))
+
+
+def _tau(out):
+    d = json.loads((Path(out) / "tau.json").read_text())
+    return INF if d["tau"] == "inf" else float(d["tau"]), d
+
+
+def _mesh(out, st, slab):
+    vol, shape = _open(st.cfg), st.plan.shape
+    tau, _ = _tau(out)
+    res = {}
+    for i, lo, hi in st.blocks_of(slab):
+        T, inside, rows, n = B.block_mesh(_read_box(vol, lo, hi), lo, shape, st.seam_axes(), fraction=st.fraction(),
+                                          tau=tau, tol_inf=st.cfg.get("tol_inf"))
+        res.update({f"tets_{i}": T, f"inside_{i}": inside, f"rows_{i}": rows, f"removed_{i}": np.int64(n)})
+    _atomic_savez(out / "meshes" / f"{slab}.npz", **res)
+
+
+def _state(out, st, p):
+    """The mesh before pass ``p``: the blocks' meshes (p = 0) or the state before pass p - 1
+    with that pass's regions merged in."""
+    N = st.plan.n_points()
+    if p == 0:
+        tau, d = _tau(out)
+        meshes, names = [], []
+        for slab in st.slabs:
+            z = _load(out / "meshes" / f"{slab}.npz")
+            for i, lo, _ in st.blocks_of(slab):
+                meshes.append((z[f"tets_{i}"], z[f"inside_{i}"], z[f"rows_{i}"], int(z[f"removed_{i}"])))
+                names.append(tuple(lo))
+        T, owner, isv = B.assemble(N, meshes, d["counts"], names)
+        return T, owner, isv, isv.copy()
+    s = _load(out / "passes" / str(p - 1) / "state.npz")
+    plan = _load(out / "passes" / str(p - 1) / "plan.npz")
+    if not len(plan["order"]) and not plan["ran"]:
+        return s["T"], s["owner"], s["isv"], s["cand"]
+    dims = st.region_dims(p - 1)
+    results = []
+    for slab in st.region_slabs(p - 1):
+        z = _load(out / "passes" / str(p - 1) / "out" / f"{slab}.npz")
+        for r in _slab_regions(plan, dims, slab):
+            results.append((z[f"removed_{r}"], z[f"tets_{r}"], z[f"inside_{r}"], z[f"rows_{r}"]))
+    T, owner, isv, _ = B.merge_pass(s["T"], s["owner"], s["isv"], plan, results)
+    cand = plan["left"] if st.passes[p - 1][0] == "seams" else s["cand"]
+    return T, owner, isv, cand
+
+
+def _slab_regions(plan, dims, slab):
+    """The runs of ``plan`` (region ids) in x-slab ``slab`` of the region grid."""
+    per = int(dims[1] * dims[2])
+    return [int(r) for r in plan["region"] if r // per == slab]
+
+
+def _step(out, st, p):
+    """Merge pass p - 1 and plan pass p: its regions' meshes, one file per x-slab."""
+    T, owner, isv, cand = _state(out, st, p)
+    target = st.target()
+    kind, offset = st.passes[p]
+    c = cand if kind == "seams" else isv.copy()
+    surplus = None if target is None else int(isv.sum()) - target
+    run = bool(c.any()) and (surplus is None or surplus > 0)
+    folder = out / "passes" / str(p)
+    _atomic_savez(folder / "state.npz", T=T, owner=owner, isv=isv, cand=cand)
+    dims = st.region_dims(p)
+    if run:
+        plan = B.pass_plan(st.plan.shape, T, owner, isv, c, offset, st.size)
+    else:
+        plan = {k: np.zeros(0, np.int64) for k in ("order", "starts", "ends", "region", "nfree")}
+        plan["left"] = cand
+    tau, _ = _tau(out)
+    tau_p = tau if kind == "seams" else INF
+    caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and surplus is not None else None
+    _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
+                  region=plan["region"], left=plan["left"], ran=np.bool_(run),
+                  surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p))
+    per = int(dims[1] * dims[2])
+    for slab in st.region_slabs(p):
+        res = {}
+        for k in np.flatnonzero(plan["region"] // per == slab) if run else ():
+            r = int(plan["region"][k])
+            inp = B.region_input(plan, T, owner, int(k))
+            res.update({f"{name}_{r}": a for name, a in inp.items()})
+            if caps is not None:
+                res[f"cap_{r}"] = np.int64(caps[k])
+        _atomic_savez(folder / "in" / f"{slab}.npz", **res)
+
+
+def _region_inputs(z):
+    regions = sorted({int(k.split("_")[1]) for k in z if k.startswith("local_")})
+    return regions, lambda r: {n: z[f"{n}_{r}"] for n in ("local", "tets", "located", "locked")}
+
+
+def _region_costs(out, st, p, slab):
+    vol, shape = _open(st.cfg), st.plan.shape
+    folder = out / "passes" / str(p)
+    plan = _load(folder / "plan.npz")
+    z = _load(folder / "in" / f"{slab}.npz")
+    regions, inp = _region_inputs(z)
+    res = {}
+    for r in regions:
+        i = inp(r)
+        res[f"runmax_{r}"] = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
+                                               tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
+                                               quota=int(z[f"cap_{r}"]), costs=True)
+    _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
+
+
+def _quota(out, st, p):
+    folder = out / "passes" / str(p)
+    plan = _load(folder / "plan.npz")
+    runmax = {}
+    for slab in st.region_slabs(p):
+        z = _load(folder / "costs" / f"{slab}.npz")
+        runmax.update({int(k.split("_")[1]): v for k, v in z.items()})
+    regions = [int(r) for r in plan["region"]]
+    q = (B.cut_quota([runmax[r] for r in regions], int(plan["surplus"])) if plan["ran"] and plan["surplus"] >= 0
+         else np.zeros(0, np.int64))
+    _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64))
+
+
+def _region_apply(out, st, p, slab):
+    vol, shape = _open(st.cfg), st.plan.shape
+    folder = out / "passes" / str(p)
+    plan = _load(folder / "plan.npz")
+    quota = None
+    if st.counted:
+        q = _load(folder / "quota.npz")
+        quota = dict(zip(q["region"].tolist(), q["quota"].tolist()))
+    z = _load(folder / "in" / f"{slab}.npz")
+    regions, inp = _region_inputs(z)
+    res = {}
+    for r in regions:
+        i = inp(r)
+        rem, nt, nonv, rows = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
+                                                tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
+                                                quota=None if quota is None else quota[r])
+        res.update({f"removed_{r}": rem, f"tets_{r}": nt, f"inside_{r}": nonv, f"rows_{r}": rows})
+    _atomic_savez(folder / "out" / f"{slab}.npz", **res)
+
+
+def _finish(out, st):
+    """The merged mesh, its errors (and fitted values), one piece per block, the summary."""
+    from types import SimpleNamespace
+
+    from ..fitting import fit_on_mesh
+    from ..io.pieces import write_piece, write_pvtu
+    from ..norms import error_norms
+    from . import RESULTS, STAGED
+
+    T, owner, isv, _ = _state(out, st, len(st.passes))
+    plan, cfg = st.plan, st.cfg
+    N = plan.n_points()
+    owner[isv] = -1
+    vertices = np.flatnonzero(isv)
+    vol = _open(cfg)
+    f = vol.read(tuple((0, n) for n in plan.shape)).reshape(-1)
+    verts, w = B.point_weights(plan.shape, T, owner)
+    r = f - np.einsum("ij,ij->i", w, f[verts])
+    hi = np.asarray(plan.shape) - 1
+    ijk = np.stack(np.unravel_index(np.arange(N), plan.shape), axis=1)
+    interior = np.all((ijk > 0) & (ijk < hi), axis=1)
+    del ijk
+    errors = error_norms(r, interior)
+    del r
+    values = list(cfg.get("values") or ["data"])
+    fit = None
+    if "fit" in values:
+        mesh = SimpleNamespace(point_weights=lambda: (verts, w), vertices=lambda: vertices)
+        fit = fit_on_mesh(mesh, f, interior)
+    del verts, w
+    staged = out / STAGED
+    # one piece per block: the tetrahedra whose lowest corner lies in it
+    corner = np.stack(np.unravel_index(T.min(axis=1), plan.shape), axis=1)
+    piece_of = np.zeros(len(T), np.int64)
+    for a in range(3):
+        cuts = np.asarray(plan.cuts[a])
+        piece_of = piece_of * plan.counts[a] + np.clip(np.searchsorted(cuts, corner[:, a], side="right") - 1, 0,
+                                                       plan.counts[a] - 1)
+    del corner
+    fit_at = None
+    if fit is not None:
+        fit_at = np.full(N, np.nan)
+        fit_at[vertices] = fit["values"]
+    pieces = []
+    order = np.argsort(piece_of, kind="stable")
+    bounds = np.searchsorted(piece_of[order], np.arange(len(plan.blocks()) + 1))
+    for b, blk in enumerate(plan.blocks()):
+        tets = T[order[bounds[b]:bounds[b + 1]]]
+        path = out / "pieces" / f"{item_name(blk)}.vtu"
+        _write_mesh(path, vol, plan.shape, tets, f, fit_at, write_piece)
+        pieces.append(path)
+    write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
+    if cfg.get("merged", True):
+        _write_mesh(staged / "mesh.vtu", vol, plan.shape, T, f, fit_at, write_piece)
+    tau, _ = _tau(out)
+    target = st.target()
+    m = len(vertices)
+    if target is not None and m <= target:
+        why = "the count was reached"
+    elif target is None:
+        why = "no collapse was left that keeps every residual within tol_inf"
+    else:
+        why = (f"no more vertices were free in the regions of blocks of {st.block}: a larger block reaches the "
+               "count")
+    summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(len(T)),
+               "E_rms": errors["E_rms"], "E_inf": errors["E_inf"], "E_rms_interior": errors["E_rms_interior"],
+               "E_inf_interior": errors["E_inf_interior"], "method": "decimate", "target": target,
+               "tol_inf": cfg.get("tol_inf"), "stopped": why, "blocks": len(plan.blocks()),
+               "cost_threshold": float(tau) if np.isfinite(tau) else None, "passes": len(st.passes)}
+    if fit is not None:
+        summary["fit"] = {k: float(v) for k, v in fit["errors"].items()}
+    _atomic_write_text(staged / "summary.json", json.dumps(summary, indent=1))
+    for name in RESULTS:
+        if name == "mesh.vtu" and not cfg.get("merged", True):
+            (staged / name).unlink(missing_ok=True)
+    publish_results(out)
+    return summary
+
+
+def _write_mesh(path, vol, shape, tets, f, fit_at, write_piece):
+    """Tetrahedra over global point indices as a .vtu: their vertices sorted by the input's
+    point id, with ``value`` (and ``fit``) and ``original_index``."""
+    ids = np.unique(tets)
+    ijk = np.stack(np.unravel_index(ids, shape), axis=1)
+    file_ids = vol.file_ids(ijk)
+    order = np.argsort(file_ids, kind="stable")
+    ids, ijk, file_ids = ids[order], ijk[order], file_ids[order]
+    local = np.empty(len(ids), np.int64)
+    local[order] = np.arange(len(ids))
+    # the tetrahedra's corners as rows of the sorted vertices
+    at = np.searchsorted(np.unique(tets), tets)
+    pts = vol.coordinates(ijk)
+    arrays = None if fit_at is None else {"fitted_value": fit_at[ids]}
+    Path(path).parent.mkdir(parents=True, exist_ok=True)
+    write_piece(path, pts, local[at], f[ids], file_ids, overwrite=True, arrays=arrays)
+
+
+def job_resources(cfg, plan, kind):
+    """``(mem_mb, runtime_minutes)`` to request for a job of ``kind``: "costs" and "mesh"
+    (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "step",
+    "cut", "quota", "finish" (arrays over the whole grid), "kernels"."""
+    N = plan.n_points()
+    block = int(cfg["block"])
+    slab_pts = float(np.prod([max(np.diff(c)) + 1 for c in plan.cuts]))
+    region_pts = float(min(N, (B.REGION * block + 1) ** 3))
+    if kind in ("costs", "mesh"):
+        mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
+    elif kind in ("rcosts", "apply"):
+        mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
+    elif kind == "step":
+        mem, secs = JOB_BASE_BYTES + (STEP_BYTES_PER_POINT + STEP_BYTES_PER_TET) * N, 60 + 2e-6 * N
+    elif kind == "finish":
+        fit = FIT_BYTES_PER_POINT if "fit" in (cfg.get("values") or ()) else 0
+        mem, secs = JOB_BASE_BYTES + (FINISH_BYTES_PER_POINT + fit) * N, 60 + 1e-5 * N
+    elif kind == "kernels":
+        mem, secs = 2 * JOB_BASE_BYTES, 600
+    else:  # cut, quota
+        mem, secs = JOB_BASE_BYTES + 16 * N, 60
+    return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
+
+
+def run_job(out, kind, item=""):
+    """One job of a run in folder ``out`` (the rules of ``decimate.smk``): ``kind`` with its
+    item (``X`` for a slab of blocks, ``P`` for a pass, ``P_R`` for slab R of pass P's regions)."""
+    cfg, _ = read_config(out)
+    out = Path(out)
+    st = Stages(cfg, plan_decimation(cfg["plan"]["shape"], cfg["block"]))
+    if kind == "kernels":
+        get_method("decimate").compile_kernels()
+    elif kind == "costs":
+        _costs(out, st, int(item))
+    elif kind == "cut":
+        _cut(out, st)
+    elif kind == "mesh":
+        _mesh(out, st, int(item))
+    elif kind == "step":
+        _step(out, st, int(item))
+    elif kind in ("rcosts", "apply"):
+        p, slab = (int(s) for s in item.split("_"))
+        (_region_costs if kind == "rcosts" else _region_apply)(out, st, p, slab)
+    elif kind == "quota":
+        _quota(out, st, int(item))
+    elif kind == "finish":
+        _finish(out, st)
+    else:
+        from ..exceptions import InputError
+
+        raise InputError(f"unknown job kind {kind!r}")
+
+
+def main(argv=None):
+    """``python -m trivsel.blocks.decimate KIND OUT [ITEM]``: one job of the workflow."""
+    from . import main as blocks_main
+
+    return blocks_main(argv, job=run_job, prog="trivsel.blocks.decimate", usage="{kernels,costs,cut,mesh,step,rcosts,quota,apply,finish} OUT [ITEM]",
+                       batches=())
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,218 @@
+# `trivsel blocks --method decimate` (trivsel.blocks.decimate): bottom-up decimation in blocks.
+#
+#   kernels -> costs (x-slabs of blocks) -> cut -> mesh (x-slabs of blocks) ->
+#   per pass P: step_P (merge the pass before, plan this one) -> [rcosts (x-slabs of regions)
+#   -> quota] -> apply (x-slabs of regions) -> finish
+#
+# The stages are those of `trivsel reduce --block B` (trivsel.decimation.blocked), so both give the
+# same mesh.  Written and run by `trivsel blocks` in the run's folder, which holds blocks.json.
+# What one stage hands the next is temporary: Snakemake removes a file once every job that
+# reads it has run (a killed run keeps what its unfinished jobs still need).
+# Block and region jobs read only their blocks' or regions' samples; step, cut, quota and finish
+# hold arrays over the whole grid (a few bytes a point), never a decimation of it.  The rules run
+# in the Python environment that runs Snakemake.
+
+import sys
+
+from trivsel.blocks import item_name, read_config
+from trivsel.blocks.decimate import Stages, job_resources, plan_decimation
+
+CFG, _ = read_config(".")
+PLAN = plan_decimation(CFG["plan"]["shape"], CFG["block"])
+ST = Stages(CFG, PLAN)
+PY = sys.executable
+PASSES = range(len(ST.passes))
+RESULTS = [f"merged/{name}" for name in ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])]
+
+
+def res(kind):
+    mem, minutes = job_resources(CFG, PLAN, kind)
+    return {"mem_mb": mem, "runtime": minutes}
+
+
+def region_files(p, folder):
+    return [f"passes/{p}/{folder}/{s}.npz" for s in ST.region_slabs(p)]
+
+
+def step_inputs(p):
+    if p == 0:
+        return [f"meshes/{s}.npz" for s in ST.slabs]
+    return [f"passes/{p - 1}/state.npz", f"passes/{p - 1}/plan.npz"] + region_files(p - 1, "out")
+
+
+wildcard_constraints:
+    slab=r"\d+",
+    p=r"\d+",
+
+
+localrules:
+    all,
+
+
+rule all:
+    input:
+        RESULTS,
+    default_target: True
+
+
+rule kernels:
+    output:
+        touch("kernels.done"),
+    log:
+        "logs/kernels.log",
+    benchmark:
+        "benchmarks/kernels.tsv"
+    resources:
+        **res("kernels"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate kernels . > {log} 2>&1"
+
+
+rule costs:
+    input:
+        "kernels.done",
+    output:
+        temp("costs/{slab}.npz"),
+    log:
+        "logs/costs/{slab}.log",
+    benchmark:
+        "benchmarks/costs/{slab}.tsv"
+    resources:
+        **res("costs"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate costs . {wildcards.slab} > {log} 2>&1"
+
+
+rule cut:
+    input:
+        [f"costs/{s}.npz" for s in ST.slabs] if ST.counted else "kernels.done",
+    output:
+        "tau.json",
+    log:
+        "logs/cut.log",
+    benchmark:
+        "benchmarks/cut.tsv"
+    resources:
+        **res("cut"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate cut . > {log} 2>&1"
+
+
+rule mesh:
+    input:
+        "tau.json",
+    output:
+        temp("meshes/{slab}.npz"),
+    log:
+        "logs/mesh/{slab}.log",
+    benchmark:
+        "benchmarks/mesh/{slab}.tsv"
+    resources:
+        **res("mesh"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate mesh . {wildcards.slab} > {log} 2>&1"
+
+
+# one step per pass: its region inputs, one file per x-slab of its region grid (known from the plan)
+for _p in PASSES:
+
+    rule:
+        name:
+            f"step_{_p}"
+        input:
+            step_inputs(_p),
+        output:
+            temp(f"passes/{_p}/state.npz"),
+            temp(f"passes/{_p}/plan.npz"),
+            temp(region_files(_p, "in")),
+        log:
+            f"logs/step/{_p}.log",
+        benchmark:
+            f"benchmarks/step/{_p}.tsv"
+        resources:
+            **res("step"),
+        params:
+            py=PY,
+            p=_p,
+        shell:
+            "'{params.py}' -m trivsel.blocks.decimate step . {params.p} > {log} 2>&1"
+
+
+rule rcosts:
+    input:
+        "passes/{p}/plan.npz",
+        "passes/{p}/in/{slab}.npz",
+    output:
+        temp("passes/{p}/costs/{slab}.npz"),
+    log:
+        "logs/rcosts/{p}_{slab}.log",
+    benchmark:
+        "benchmarks/rcosts/{p}_{slab}.tsv"
+    resources:
+        **res("rcosts"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate rcosts . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
+
+
+rule quota:
+    input:
+        lambda wc: region_files(int(wc.p), "costs"),
+    output:
+        temp("passes/{p}/quota.npz"),
+    log:
+        "logs/quota/{p}.log",
+    benchmark:
+        "benchmarks/quota/{p}.tsv"
+    resources:
+        **res("quota"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate quota . {wildcards.p} > {log} 2>&1"
+
+
+rule apply:
+    input:
+        "passes/{p}/plan.npz",
+        "passes/{p}/in/{slab}.npz",
+        lambda wc: [f"passes/{wc.p}/quota.npz"] if ST.counted else [],
+    output:
+        temp("passes/{p}/out/{slab}.npz"),
+    log:
+        "logs/apply/{p}_{slab}.log",
+    benchmark:
+        "benchmarks/apply/{p}_{slab}.tsv"
+    resources:
+        **res("apply"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate apply . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
+
+
+rule finish:
+    input:
+        step_inputs(len(ST.passes)),
+    output:
+        RESULTS,
+        [f"pieces/{item_name(b)}.vtu" for b in PLAN.blocks()],
+    log:
+        "logs/finish.log",
+    benchmark:
+        "benchmarks/finish.tsv"
+    resources:
+        **res("finish"),
+    params:
+        py=PY,
+    shell:
+        "'{params.py}' -m trivsel.blocks.decimate finish . > {log} 2>&1"
