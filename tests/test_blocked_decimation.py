@@ -149,5 +149,9 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
             str(tmp_path / "big")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].endswith("in blocks of bounded memory: trivsel " + " ".join(argv) + " --block 64")
+    # the refusal names decimate's jobs in blocks (regions of at most 1.5 GiB), and the one-process --block
+    jobs = (f"trivsel blocks --function 4 --n 400 --method decimate --block 48 --fraction 0.05 --out "
+            f"{tmp_path / 'big'} -c 2")
+    assert len(err) == 1 and err[0].endswith(f"in blocks of bounded memory: {jobs} (or in one process: trivsel "
+                                             + " ".join(argv) + " --block 64)"), err
     assert not (tmp_path / "big").exists()

@@ -323,12 +323,22 @@ def _blocks_hint(a, chosen, available):
             ["--volume", str(a.volume)] if a.volume is not None else [])
     else:
         source = ["--function", str(a.function), "--n", str(a.n)]
-    if chosen == "decimate":  # decimate itself in blocks, in this process, where one count or fraction fits
+    if chosen == "decimate" and a.tol_rms is None and (a.count is not None) + len(a.fractions or ()) <= 1:
+        # decimate's own stages in blocks: as jobs, or in this process where they fit
+        from .blocks.decimate import block_for_memory as jobs_block
+
+        stop = (["--count", str(a.count)] if a.count is not None
+                else ["--fraction", f"{float(a.fractions[0]):g}"] if a.fractions else [])
+        stop += ["--tol-inf", f"{float(a.tol_inf):g}"] if a.tol_inf is not None else []
+        cmd = ["trivsel", "blocks", *source, "--method", "decimate", "--block", str(jobs_block(available)), *stop,
+               *(["--values", *a.values] if a.values else []), "--out", a.out, "-c", "2"]
         block = _decimate_block_for_memory(a, source, available)
+        one = ""
         if block is not None:
             argv = [x for i, x in enumerate(a.argv)  # the same command, its --block replaced
                     if x != "--block" and not x.startswith("--block=") and (i == 0 or a.argv[i - 1] != "--block")]
-            return "in blocks of bounded memory: " + shlex.join(["trivsel", *argv, "--block", str(block)])
+            one = f" (or in one process: {shlex.join(['trivsel', *argv, '--block', str(block)])})"
+        return "in blocks of bounded memory: " + shlex.join(cmd) + one
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
     method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
     tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"

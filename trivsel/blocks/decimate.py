@@ -115,6 +115,16 @@ def check_job_memory(full):
                      f"{need[kind] / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB available: {fix}")
 
 
+def block_for_memory(available, *, cores=2):
+    """The largest block of (128, 96, 64, 48, 32, 16) whose region jobs (2 x 2 x 2 blocks, the
+    largest decimations of a run) need at most 1.5 GiB and at most ``available / cores`` bytes."""
+    bound = min(1.5 * 2**30, float(available) / max(int(cores), 1))
+    for b in (128, 96, 64, 48, 32, 16):
+        if JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * float(B.REGION * b + 1) ** 3 <= bound:
+            return b
+    return 16
+
+
 def plan_decimation(shape, block) -> Plan:
     """The blocks of ``decimate`` in blocks (:func:`trivsel.decimation.blocked.block_cuts`)."""
     return Plan(tuple(int(s) for s in shape),
