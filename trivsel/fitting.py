@@ -101,13 +101,18 @@ def normal_equations(verts, weights, values, vertices):
     vertices = np.asarray(vertices, np.int64)
     N, m = f.shape[0], len(vertices)
     col = _column_map(N, vertices)
+    return _normal_equations(((*_chunk(verts, weights, col, s, min(s + CHUNK, N)), f[s:s + CHUNK])
+                              for s in range(0, N, CHUNK)), m)
+
+
+def _normal_equations(chunks, m):
+    """``K`` and ``b`` of :func:`normal_equations` from chunks of points ``(c, w, f)``: their
+    columns and weights (as :func:`_chunk` gives them) and values."""
     diag, b = np.zeros(m), np.zeros(m)
     off = sp.csr_matrix((m, m))
-    for s in range(0, N, CHUNK):
-        e = min(s + CHUNK, N)
-        c, w = _chunk(verts, weights, col, s, e)
+    for c, w, fv in chunks:
         diag += np.bincount(c.ravel(), (w * w).ravel(), minlength=m)
-        b += np.bincount(c.ravel(), (w * f[s:e, None]).ravel(), minlength=m)
+        b += np.bincount(c.ravel(), (w * fv[:, None]).ravel(), minlength=m)
         prod = [w[:, i] * w[:, j] for i, j in _PAIRS]
         keep = [p > 0 for p in prod]
         rows = np.concatenate([c[k, i] for (i, _), k in zip(_PAIRS, keep)])
@@ -227,6 +232,19 @@ def fit_vertex_values(verts, weights, values, vertices):
         c, w = _chunk(verts, weights, col, s, e)
         residuals[s:e] = f[s:e] - np.einsum("ij,ij->i", w, fitted[c])
     return fitted, residuals
+
+
+def fit_in_chunks(point_chunks, n_points, vertices, start):
+    """Least-squares vertex values (:func:`fit_vertex_values`) without the points' weights in
+    memory at once: ``point_chunks()`` yields, chunk by chunk of points, ``(verts, weights,
+    values)`` as :func:`fit_vertex_values` takes them whole; ``start``, the values at
+    ``vertices`` the conjugate gradients start from.  Returns the fitted values at ``vertices``."""
+    vertices = np.asarray(vertices, np.int64)
+    col = _column_map(n_points, vertices)
+    K, b = _normal_equations(((*_chunk(v, w, col, 0, len(w)), np.asarray(f, float)) for v, w, f in point_chunks()),
+                             len(vertices))
+    fitted, _ = solve_normal_equations(K, b, start)
+    return fitted
 
 
 def fit_on_mesh(mesh, values, interior):

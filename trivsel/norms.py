@@ -51,3 +51,32 @@ def face_residual_rms(e_rms, e_rms_interior, n_all, n_interior) -> float:
     s = e_rms**2 * n_all - e_rms_interior**2 * n_interior
     nb = n_all - n_interior
     return float(np.sqrt(s / nb)) if s >= 0 and nb > 0 else float("nan")
+
+
+class ErrorSums:
+    """The four numbers of :func:`error_norms`, accumulated over chunks of residuals (``add``),
+    so that the residuals of every point need not be in memory at once."""
+
+    def __init__(self):
+        self.sse = self.sse_in = 0.0
+        self.n = self.n_in = 0
+        self.max = self.max_in = float("-inf")
+
+    def add(self, residuals, interior_mask):
+        r = np.abs(np.asarray(residuals, float))
+        m = np.asarray(interior_mask, bool)
+        self.sse += float(np.sum(r * r))
+        self.n += r.size
+        ri = r[m]
+        self.sse_in += float(np.sum(ri * ri))
+        self.n_in += ri.size
+        if r.size:
+            self.max = max(self.max, float(r.max()))
+        if ri.size:
+            self.max_in = max(self.max_in, float(ri.max()))
+
+    def norms(self) -> dict:
+        nan = float("nan")
+        return {"E_rms": float(np.sqrt(self.sse / self.n)) if self.n else nan,
+                "E_rms_interior": float(np.sqrt(self.sse_in / self.n_in)) if self.n_in else nan,
+                "E_inf": self.max if self.n else nan, "E_inf_interior": self.max_in if self.n_in else nan}

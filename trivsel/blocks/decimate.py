@@ -362,35 +362,42 @@ def _region_apply(out, st, p, slab):
 
 
 def _finish(out, st):
-    """The merged mesh, its errors (and fitted values), one piece per block, the summary."""
-    from types import SimpleNamespace
-
-    from ..fitting import fit_on_mesh
+    """The merged mesh, its errors (and fitted values), one piece per block, the summary.  The
+    points' weights and residuals are computed in chunks, never for every point at once."""
+    from ..fitting import CHUNK, fit_in_chunks
     from ..io.pieces import write_piece, write_pvtu
-    from ..norms import error_norms
+    from ..norms import ErrorSums
     from . import RESULTS, STAGED
 
     T, owner, isv, _ = _state(out, st, len(st.passes))
     plan, cfg = st.plan, st.cfg
     N = plan.n_points()
     owner[isv] = -1
-    vertices = np.flatnonzero(isv)
+    del isv
+    vertices = np.flatnonzero(owner < 0)
     vol = _open(cfg)
     f = vol.read(tuple((0, n) for n in plan.shape)).reshape(-1)
-    verts, w = B.point_weights(plan.shape, T, owner)
-    r = f - np.einsum("ij,ij->i", w, f[verts])
     hi = np.asarray(plan.shape) - 1
-    ijk = np.stack(np.unravel_index(np.arange(N), plan.shape), axis=1)
-    interior = np.all((ijk > 0) & (ijk < hi), axis=1)
-    del ijk
-    errors = error_norms(r, interior)
-    del r
+
+    def chunks():  # the points in the fit's own chunks, so that its sums are those of one piece's fit
+        for s in range(0, N, CHUNK):
+            idx = np.arange(s, min(s + CHUNK, N), dtype=np.int64)
+            verts, w = B.point_weights_of(plan.shape, T, owner, idx)
+            ijk = np.stack(np.unravel_index(idx, plan.shape), axis=1)
+            yield idx, verts, w, np.all((ijk > 0) & (ijk < hi), axis=1)
+
+    data_sums = ErrorSums()
+    for idx, verts, w, inner in chunks():
+        data_sums.add(f[idx] - np.einsum("ij,ij->i", w, f[verts]), inner)
+    errors = data_sums.norms()
     values = list(cfg.get("values") or ["data"])
     fit = None
     if "fit" in values:
-        mesh = SimpleNamespace(point_weights=lambda: (verts, w), vertices=lambda: vertices)
-        fit = fit_on_mesh(mesh, f, interior)
-    del verts, w
+        fitted = fit_in_chunks(lambda: ((v, w, f[i]) for i, v, w, _ in chunks()), N, vertices, f[vertices])
+        fit_sums = ErrorSums()
+        for idx, verts, w, inner in chunks():
+            fit_sums.add(f[idx] - np.einsum("ij,ij->i", w, fitted[np.searchsorted(vertices, verts)]), inner)
+        fit = {"values": fitted, "errors": fit_sums.norms()}
     staged = out / STAGED
     # one piece per block: the tetrahedra whose lowest corner lies in it
     corner = np.stack(np.unravel_index(T.min(axis=1), plan.shape), axis=1)
@@ -400,10 +407,7 @@ def _finish(out, st):
         piece_of = piece_of * plan.counts[a] + np.clip(np.searchsorted(cuts, corner[:, a], side="right") - 1, 0,
                                                        plan.counts[a] - 1)
     del corner
-    fit_at = None
-    if fit is not None:
-        fit_at = np.full(N, np.nan)
-        fit_at[vertices] = fit["values"]
+    fit_at = None if fit is None else (vertices, fit["values"])
     pieces = []
     order = np.argsort(piece_of, kind="stable")
     bounds = np.searchsorted(piece_of[order], np.arange(len(plan.blocks()) + 1))
@@ -442,7 +446,8 @@ def _finish(out, st):
 
 def _write_mesh(path, vol, shape, tets, f, fit_at, write_piece):
     """Tetrahedra over global point indices as a .vtu: their vertices sorted by the input's
-    point id, with ``value`` (and ``fit``) and ``original_index``."""
+    point id, with ``value``, ``fitted_value`` (``fit_at``: the vertices and their fitted
+    values) and ``original_index``."""
     ids = np.unique(tets)
     ijk = np.stack(np.unravel_index(ids, shape), axis=1)
     file_ids = vol.file_ids(ijk)
@@ -453,7 +458,7 @@ def _write_mesh(path, vol, shape, tets, f, fit_at, write_piece):
     # the tetrahedra's corners as rows of the sorted vertices
     at = np.searchsorted(np.unique(tets), tets)
     pts = vol.coordinates(ijk)
-    arrays = None if fit_at is None else {"fitted_value": fit_at[ids]}
+    arrays = None if fit_at is None else {"fitted_value": fit_at[1][np.searchsorted(fit_at[0], ids)]}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
     write_piece(path, pts, local[at], f[ids], file_ids, overwrite=True, arrays=arrays)
 

@@ -52,7 +52,7 @@ from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "assemble",
            "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
-           "decimate_in_blocks", "point_weights", "reduce_in_blocks"]
+           "decimate_in_blocks", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -483,19 +483,26 @@ def point_weights(shape, tets, ptet):
     """For every point of the grid ``shape``, the 4 vertices of the tetrahedron that holds it
     (``tets[ptet[p]]``) and its barycentric weights there, from integer determinants (a
     vertex, ``ptet`` -1: itself with weight 1), as :meth:`Decimation.point_weights` gives them."""
-    N = int(np.prod(shape))
-    verts = np.repeat(np.arange(N, dtype=np.int64)[:, None], 4, axis=1)
-    w = np.zeros((N, 4))
+    return point_weights_of(shape, tets, ptet, np.arange(int(np.prod(shape)), dtype=np.int64))
+
+
+def point_weights_of(shape, tets, ptet, points):
+    """:func:`point_weights` of the grid points ``points`` only (global indices), so that a
+    caller can go through the grid in chunks."""
+    points = np.asarray(points, np.int64)
+    verts = np.repeat(points[:, None], 4, axis=1)
+    w = np.zeros((len(points), 4))
     w[:, 0] = 1.0
-    inside = np.flatnonzero(ptet >= 0)
+    inside = np.flatnonzero(ptet[points] >= 0)
     for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
-        q = np.stack(np.unravel_index(tets[ptet[part]], shape), axis=-1)  # (k, 4, 3)
-        x = np.stack(np.unravel_index(part, shape), axis=-1)
+        corners = tets[ptet[points[part]]]
+        q = np.stack(np.unravel_index(corners, shape), axis=-1)  # (k, 4, 3)
+        x = np.stack(np.unravel_index(points[part], shape), axis=-1)
         lam = np.stack([_det(q[:, 1] - x, q[:, 2] - x, q[:, 3] - x),
                         _det(x - q[:, 0], q[:, 2] - q[:, 0], q[:, 3] - q[:, 0]),
                         _det(q[:, 1] - q[:, 0], x - q[:, 0], q[:, 3] - q[:, 0]),
                         _det(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0], x - q[:, 0])], axis=1)
-        verts[part] = tets[ptet[part]]
+        verts[part] = corners
         w[part] = lam / lam.sum(axis=1, keepdims=True)
     return verts, w
 
