@@ -42,6 +42,8 @@ __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "job_resources
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
 INF = np.inf
+#: The names of a region's result (:func:`trivsel.decimation.blocked.region_decimate`) in the files
+RESULT = ("removed", "tets", "inside", "rows")
 #: The workflow of these stages
 SNAKEFILE = Path(__file__).with_name("decimate.smk")
 #: What a value of ``values`` may be
@@ -262,7 +264,7 @@ def _state(out, st, p):
     for slab in st.region_slabs(p - 1):
         z = _load(out / "passes" / str(p - 1) / "out" / f"{slab}.npz")
         for r in _slab_regions(plan, dims, slab):
-            results.append((z[f"removed_{r}"], z[f"tets_{r}"], z[f"inside_{r}"], z[f"rows_{r}"]))
+            results.append(tuple(z[f"{name}_{r}"] for name in RESULT))
     T, owner, isv, _ = B.merge_pass(s["T"], s["owner"], s["isv"], plan, results)
     cand = plan["left"] if st.passes[p - 1][0] == "seams" else s["cand"]
     return T, owner, isv, cand
@@ -322,9 +324,10 @@ def _region_costs(out, st, p, slab):
     res = {}
     for r in regions:
         i = inp(r)
-        res[f"runmax_{r}"] = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
-                                               tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
-                                               quota=int(z[f"cap_{r}"]), costs=True)
+        runmax, result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
+                                           tol_inf=st.cfg.get("tol_inf"), quota=int(z[f"cap_{r}"]), costs=True)
+        res[f"runmax_{r}"] = runmax
+        res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
     _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
 
 
@@ -334,7 +337,7 @@ def _quota(out, st, p):
     runmax = {}
     for slab in st.region_slabs(p):
         z = _load(folder / "costs" / f"{slab}.npz")
-        runmax.update({int(k.split("_")[1]): v for k, v in z.items()})
+        runmax.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("runmax_")})
     regions = [int(r) for r in plan["region"]]
     q = (B.cut_quota([runmax[r] for r in regions], int(plan["surplus"])) if plan["ran"] and plan["surplus"] >= 0
          else np.zeros(0, np.int64))
@@ -345,19 +348,22 @@ def _region_apply(out, st, p, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     folder = out / "passes" / str(p)
     plan = _load(folder / "plan.npz")
-    quota = None
+    quota, recorded = None, {}
     if st.counted:
         q = _load(folder / "quota.npz")
         quota = dict(zip(q["region"].tolist(), q["quota"].tolist()))
+        recorded = _load(folder / "costs" / f"{slab}.npz")
     z = _load(folder / "in" / f"{slab}.npz")
     regions, inp = _region_inputs(z)
     res = {}
     for r in regions:
-        i = inp(r)
-        rem, nt, nonv, rows = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
-                                                tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
-                                                quota=None if quota is None else quota[r])
-        res.update({f"removed_{r}": rem, f"tets_{r}": nt, f"inside_{r}": nonv, f"rows_{r}": rows})
+        if quota is not None and quota[r] == len(recorded[f"runmax_{r}"]):  # every collapse it recorded
+            result = [recorded[f"{name}_{r}"] for name in RESULT]
+        else:
+            i = inp(r)
+            result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
+                                       tol_inf=st.cfg.get("tol_inf"), quota=None if quota is None else quota[r])
+        res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})
     _atomic_savez(folder / "out" / f"{slab}.npz", **res)
 
 

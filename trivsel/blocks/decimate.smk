@@ -185,7 +185,7 @@ rule apply:
     input:
         "passes/{p}/plan.npz",
         "passes/{p}/in/{slab}.npz",
-        lambda wc: [f"passes/{wc.p}/quota.npz"] if ST.counted else [],
+        lambda wc: [f"passes/{wc.p}/quota.npz", f"passes/{wc.p}/costs/{wc.slab}.npz"] if ST.counted else [],
     output:
         temp("passes/{p}/out/{slab}.npz"),
     log:

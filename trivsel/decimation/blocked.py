@@ -263,23 +263,25 @@ def region_input(plan, T, owner, k):
 def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False):
     """Decimate one region (:func:`region_input`; ``values`` at its ``local`` points) on the
     grid's lattice (exact integer predicates), its free vertices the only ones that move, down
-    to ``tau`` and by at most ``quota`` vertices.  With ``costs``, the running maxima of its
-    collapse costs in the order made; else the points it removed, its new tetrahedra, and the
-    points inside them with their rows (global indices)."""
+    to ``tau`` and by at most ``quota`` vertices.  Returns the points it removed, its new
+    tetrahedra, and the points inside them with their rows (global indices); with ``costs``,
+    the running maxima of its collapse costs in the order made first, and that result: the one a
+    run whose quota is all of these collapses gives (:func:`cut_quota` then reuses it)."""
     local = inp["local"]
     St = new_mesh_state(np.stack(np.unravel_index(local, shape), axis=1), inp["tets"],
                         np.asarray(values, np.float64), located=inp["located"], key="sse", lazy=False)
     St.lock[inp["locked"]] |= LOCK_ALL
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
     dec.run(0 if quota is None else dec.n_vertices - int(quota), key_max=tau)
-    if costs:
-        keys = dec.S.hkey[dec.removed()]
-        return np.maximum.accumulate(keys) if len(keys) else keys.copy()
-    if quota is not None and len(dec.removed()) != quota:
+    if not costs and quota is not None and len(dec.removed()) != quota:
         raise RuntimeError("a region did not repeat its recorded collapses")
     alive_row = np.cumsum(dec.S.alive) - 1
     nonv = np.flatnonzero(~dec.S.isv)
-    return local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
+    result = local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
+    if costs:
+        keys = dec.S.hkey[dec.removed()]
+        return (np.maximum.accumulate(keys) if len(keys) else keys.copy()), result
+    return result
 
 
 def cost_caps(plan, surplus, share_cap):
@@ -452,10 +454,16 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None)
+    whole = {}  # the regions whose quota is every collapse they recorded: that run's result
     if surplus is not None:
         sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
-        sh["quota"] = cut_quota(list(_map(_region_costs, runs, threads)), surplus)
-    T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, _map(_region_apply, runs, threads))
+        recorded = list(_map(_region_costs, runs, threads))
+        sh["quota"] = cut_quota([r for r, _ in recorded], surplus)
+        whole = {k: res for k, (r, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
+        del recorded
+    todo = [k for k in runs if k not in whole]
+    done = dict(zip(todo, _map(_region_apply, todo, threads)))
+    T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, (whole[k] if k in whole else done[k] for k in runs))
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
                                             "removed": removed, "not_free": int(plan["left"].sum())}
