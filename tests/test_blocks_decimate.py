@@ -126,3 +126,32 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     assert main(["blocks", "--function", "4", "--n", "16", "--block", "8", "--method", "decimate", "--count", "100",
                  "-n", "--out", str(tmp_path / "dry")]) == 0
     assert "step_6" in capfd.readouterr().out and not (tmp_path / "dry").exists()
+
+
+@pytest.mark.slurm
+def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
+    """Every job through sbatch with the unchanged workflow profile, each COMPLETED in sacct, and
+    the mesh of one process (a tolerance stop: three passes, no quota jobs)."""
+    import re
+    import subprocess
+    import sys
+    from pathlib import Path
+
+    from conftest import sacct_rows
+
+    n, block, tol = 24, 8, 0.02
+    profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
+    out = tmp_path / "slurm"
+    r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", str(n), "--block",
+                        str(block), "--method", "decimate", "--tol-inf", str(tol), "--out", str(out), "--",
+                        "--executor", "slurm", "--workflow-profile", str(profile),
+                        "--slurm-init-seconds-before-status-checks", "5"], capture_output=True, text=True, timeout=1200)
+    output = r.stdout + r.stderr
+    assert r.returncode == 0, output[-5000:]
+    ids = sorted(set(re.findall(r"has been submitted with SLURM jobid (\d+)", output)), key=int)
+    rows = sacct_rows(ids, ["JobID", "State", "ExitCode"])
+    assert len(ids) >= 10 and set(rows) == set(ids), (ids, rows)
+    assert all(row["State"] == "COMPLETED" and row["ExitCode"] == "0:0" for row in rows.values()), rows
+    _, _, tets = _read(out / "mesh.vtu")
+    vol = sample_grid(4, n).values.reshape((n + 1,) * 3)
+    assert _same_tets(tets, decimate_in_blocks(vol, block, tol_inf=tol)["tets"])

@@ -6,10 +6,11 @@ the same mesh; here each is a job of the workflow ``trivsel/blocks/decimate.smk`
 one stage hands the next is a file in the run's folder::
 
     costs/X.npz        pass 1, the blocks of x-slab X one after the other: each block's
-                       recorded collapse costs (running maxima) and its points off the seams
+                       recorded collapses (point and target) and their costs (running
+                       maxima), and its points off the seams
     tau.json           the cost threshold cut across every block's sequence
-    meshes/X.npz       pass 2, each block of slab X down to the threshold: its tetrahedra,
-                       the points inside them and their rows
+    meshes/X.npz       pass 2, each block of slab X down to the threshold (its recorded
+                       collapses replayed): its tetrahedra, the points inside them and their rows
     passes/P/state.npz the whole mesh before pass P: tetrahedra, each point's tetrahedron,
                        vertex flags, the seam candidates (a step job: 9 bytes a point and
                        32 a tetrahedron, not a decimation)
@@ -203,9 +204,9 @@ def _costs(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     res = {}
     for i, lo, hi in st.blocks_of(slab):
-        r, n_inner = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(), fraction=st.fraction(),
-                                   tol_inf=st.cfg.get("tol_inf"))
-        res[f"runmax_{i}"], res[f"inner_{i}"] = r, np.int64(n_inner)
+        r, n_inner, (removed, into) = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(),
+                                                    fraction=st.fraction(), tol_inf=st.cfg.get("tol_inf"))
+        res.update({f"runmax_{i}": r, f"inner_{i}": np.int64(n_inner), f"removed_{i}": removed, f"into_{i}": into})
     _atomic_savez(out / "costs" / f"{slab}.npz", **res)
 
 
@@ -215,10 +216,10 @@ def _cut(out, st):
     target = st.target()
     if target is not None:
         for slab in st.slabs:
-            z = _load(out / "costs" / f"{slab}.npz")
-            for i, _, _ in st.blocks_of(slab):
-                runmax.append(z[f"runmax_{i}"])
-                inner.append(int(z[f"inner_{i}"]))
+            with np.load(out / "costs" / f"{slab}.npz", allow_pickle=False) as z:  # the costs only
+                for i, _, _ in st.blocks_of(slab):
+                    runmax.append(z[f"runmax_{i}"])
+                    inner.append(int(z[f"inner_{i}"]))
     tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": tau if np.isfinite(tau) else "inf", "target": target,
@@ -232,11 +233,16 @@ def _tau(out):
 
 def _mesh(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
-    tau, _ = _tau(out)
+    tau, d = _tau(out)
+    recorded = _load(out / "costs" / f"{slab}.npz") if st.counted else None  # pass 1's collapses, replayed
     res = {}
     for i, lo, hi in st.blocks_of(slab):
+        rec = None
+        if recorded is not None:
+            c = d["counts"][i]
+            rec = recorded[f"removed_{i}"][:c], recorded[f"into_{i}"][:c]
         T, inside, rows, n = B.block_mesh(_read_box(vol, lo, hi), lo, shape, st.seam_axes(), fraction=st.fraction(),
-                                          tau=tau, tol_inf=st.cfg.get("tol_inf"))
+                                          tau=tau, tol_inf=st.cfg.get("tol_inf"), recorded=rec)
         res.update({f"tets_{i}": T, f"inside_{i}": inside, f"rows_{i}": rows, f"removed_{i}": np.int64(n)})
     _atomic_savez(out / "meshes" / f"{slab}.npz", **res)
 

@@ -107,6 +107,7 @@ rule cut:
 rule mesh:
     input:
         "tau.json",
+        "costs/{slab}.npz" if ST.counted else [],
     output:
         temp("meshes/{slab}.npz"),
     log:

@@ -112,6 +112,7 @@ class State(NamedTuple):
         lock[p]       the box constraint (bits above)
         heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
                       queued); htgt[v] the target of v's cheapest collapse
+        removed[k]    the k-th vertex removed, into[k] the vertex it moved onto
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
                       the max criterion, lazy updates, the corner pool's top]
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
@@ -143,6 +144,7 @@ class State(NamedTuple):
     deg: np.ndarray
     hdeg: np.ndarray
     removed: np.ndarray
+    into: np.ndarray
     dirty: np.ndarray
     sc: np.ndarray
     Q: np.ndarray
@@ -168,7 +170,7 @@ KERNEL_SOURCES = (os.path.join(_HERE, "collapse.py"), os.path.join(_HERE, "__ini
 
 
 def kernels(S, *, rebuild=False):
-    """The kernels ``init``, ``run``, ``flush`` and ``weights`` for states of the layout of
+    """The kernels ``init``, ``link``, ``run``, ``replay``, ``flush`` and ``weights`` for states of the layout of
     ``S``: compiled ahead of time and loaded without numba, or numba's own
     (:func:`trivsel.aot.kernels`; the same results)."""
     from ..aot import kernels as _kernels
@@ -222,7 +224,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  isv=np.ones(N, np.bool_), lock=lk.astype(np.int8), hv=np.zeros(N, ix), hpos=np.full(N, -1, ix),
                  hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix), hdeg=np.zeros(N, np.int32),
                  deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
-                 removed=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
+                 removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
                  kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
@@ -315,7 +317,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
                  phead=phead, pnext=pnext, ptet=ptet, res=res, isv=isv.copy(), lock=lk, hv=np.zeros(N, ix),
                  hpos=np.full(N, -1, ix), hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix),
                  hdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
-                 removed=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
+                 removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
                  kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
@@ -335,13 +337,17 @@ class Decimation:
     starts with lazy updates of the queue (the module's docstring); :attr:`lazy` switches.
     """
 
-    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False, state=None):
+    def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False, state=None,
+                 queue=True):
         self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
         self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy) if state is None else state
         self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
         self._k = kernels(self.S)
-        self._k.init(self.S, self.tol_inf)
+        if queue:
+            self._k.init(self.S, self.tol_inf)
+        else:  # for replay only: no collapse is costed
+            self._k.link(self.S)
 
     @classmethod
     def on_mesh(cls, points, tets, values, *, located=None, tol_inf=None, key="sse", lazy=False, boundary=None):
@@ -383,6 +389,17 @@ class Decimation:
                 return code
             self._compact()
 
+    def replay(self, removed, into):
+        """Make the collapses ``removed[k] -> into[k]`` in order, as an earlier run from the same
+        start made them (:meth:`removed`, :meth:`into`): the same mesh, residuals and buckets,
+        with no cost computed.  Made with ``queue=False``: no :meth:`run` may follow."""
+        vs, ws = np.ascontiguousarray(removed, np.int64), np.ascontiguousarray(into, np.int64)
+        done = 0
+        while done < len(vs):
+            done = int(self._k.replay(self.S, vs, ws, done))
+            if done < len(vs):
+                self._compact()
+
     def _compact(self):
         """Copy every vertex's corners, in order, into a new pool, each segment with half its
         count again as room, and above the segments as much room as they take, and at least
@@ -422,6 +439,10 @@ class Decimation:
     def removed(self):
         """The removed points, in order of removal."""
         return self.S.removed[: self.S.ctr[C_NREM]].copy()
+
+    def into(self):
+        """The vertex each removed point moved onto, in order of removal."""
+        return self.S.into[: self.S.ctr[C_NREM]].copy()
 
     def vertices(self):
         return np.flatnonzero(self.S.isv)

@@ -139,17 +139,27 @@ def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max):
 
 
 def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None):
-    """Pass 1 on one block: the running maxima of its collapse costs in the order made, and
-    its number of points off the seams."""
+    """Pass 1 on one block: the running maxima of its collapse costs in the order made, its
+    number of points off the seams, and the collapses themselves (the points removed and the
+    vertices they moved onto, block indices), for pass 2 to replay."""
     dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF)
-    keys = dec.S.hkey[dec.removed()]
-    return np.maximum.accumulate(keys) if len(keys) else keys.copy(), int((~seam).sum())
+    removed = dec.removed()
+    keys = dec.S.hkey[removed]
+    runmax = np.maximum.accumulate(keys) if len(keys) else keys.copy()
+    return runmax, int((~seam).sum()), (removed.astype(np.int32), dec.into().astype(np.int32))
 
 
-def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None):
+def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, recorded=None):
     """Pass 2 on one block, down to the threshold ``tau``: its tetrahedra (global point
-    indices), the points inside them with their rows, and the number of collapses."""
-    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, tau)
+    indices), the points inside them with their rows, and the number of collapses.  With
+    ``recorded`` (pass 1's collapses up to ``tau``: :func:`block_costs`' third item, cut to
+    its count at ``tau``), those collapses are replayed, not costed again: the same mesh."""
+    if recorded is None:
+        dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, tau)
+    else:
+        S, gid, seam = _block_state(values, lo, shape, seam_axes)
+        dec = Decimation(None, None, None, tol_inf=tol_inf, state=S, queue=False)
+        dec.replay(*recorded)
     row = np.cumsum(dec.S.alive) - 1
     inside = np.flatnonzero(~dec.S.isv)
     return gid[dec.tetrahedra()], gid[inside], row[dec.S.ptet[inside]], len(dec.removed())
@@ -363,15 +373,19 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
                    fraction=0.0 if target is None else target / N)
 
     # pass 1: every block's costs, cheapest first, as running maxima
-    runmax, inner = [], []
+    runmax, inner, recorded = [], [], []
     if target is not None:
-        for r, n_inner in _map(_block_costs, range(len(bounds)), threads):
+        for r, n_inner, seq in _map(_block_costs, range(len(bounds)), threads):
             runmax.append(r)
             inner.append(n_inner)
+            recorded.append(seq)
     tau = threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
 
-    # pass 2: every block to tau (the prefix of its sequence)
+    # pass 2: every block to tau (the prefix of its sequence, replayed)
+    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _SHARED["tau"] = tau
+    _SHARED["recorded"] = [(v[:c], w[:c]) for (v, w), c in zip(recorded, counts)] if counts else None
+    del recorded
 
     def meshes():
         left = N
@@ -380,8 +394,8 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
             say(left)
             yield m
 
-    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     T, owner, isv = assemble(N, meshes(), counts, [tuple(lo) for lo, _ in bounds])
+    _SHARED.pop("recorded")
     stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
 
     # the seams, region by region (every vertex a candidate, down to tau); then the quota
@@ -441,8 +455,9 @@ def _block_costs(i):
 
 def _block_mesh(i):
     values, lo = _block_values(i)
+    rec = _SHARED["recorded"]
     return block_mesh(values, lo, _SHARED["vol"].shape, _SHARED["seam_axes"], fraction=_SHARED["fraction"],
-                      tau=_SHARED["tau"], tol_inf=_SHARED["tol_inf"])
+                      tau=_SHARED["tau"], tol_inf=_SHARED["tol_inf"], recorded=None if rec is None else rec[i])
 
 
 def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1):

@@ -438,12 +438,18 @@ def _queue(S, v, key, w, d, delta):
 
 
 @njit(cache=True, _nrt=False)
-def _init(S, tol_inf):
-    """Corner lists from the tets, then every vertex's cheapest collapse."""
+def _link_all(S):
+    """Corner lists from the tets."""
     M = S.T.shape[0]
     for t in range(M - 1, -1, -1):
         for j in range(3, -1, -1):
             _link(S, S.T[t, j], 4 * t + j)
+
+
+@njit(cache=True, _nrt=False)
+def _init(S, tol_inf):
+    """Corner lists from the tets, then every vertex's cheapest collapse."""
+    _link_all(S)
     N = S.P.shape[0]
     for v in range(N):
         S.aff[v] = v
@@ -489,12 +495,33 @@ def _run(S, stop_count, sse_max, key_max, tol_inf):
         _collapse(S, v, w, sc, n)
         _queue(S, v, INF, -1, 0, INF)
         S.removed[S.ctr[C_NREM]] = v
+        S.into[S.ctr[C_NREM]] = w
         S.ctr[C_NREM] += 1
         S.ctr[C_NV] -= 1
         if S.ctr[C_LAZY]:
             na = _mark_queued(S, aff, na)
         _evaluate(S, aff, na, tol_inf)
     return 0
+
+
+@njit(cache=True, _nrt=False)
+def _replay(S, vs, ws, start):
+    """Make the collapses ``vs[k] -> ws[k]``, from ``k = start`` on, in order: collapses that
+    an earlier run made from the same start (each valid when it was made), so no cost is
+    computed and no queue kept.  Returns how many are made in all: fewer than ``len(vs)``
+    when the corner pool lacks room (compact it and call again from there)."""
+    sc = S.sc
+    for k in range(start, vs.shape[0]):
+        v, w = vs[k], ws[k]
+        if S.ctr[C_PTOP] + 4 * (S.deg[w] + S.deg[v]) + 16 > S.cpool.shape[0]:
+            return k
+        n = _star(S, v, sc)
+        _collapse(S, v, w, sc, n)
+        S.removed[S.ctr[C_NREM]] = v
+        S.into[S.ctr[C_NREM]] = w
+        S.ctr[C_NREM] += 1
+        S.ctr[C_NV] -= 1
+    return vs.shape[0]
 
 
 @njit(cache=True, _nrt=False)
@@ -559,13 +586,15 @@ def _weights(S):
 
 def aot_exports(state_type):
     """The kernels that :class:`~trivsel.decimation.Decimation` calls from Python, by the
-    names it calls them (``init``, ``run``, ``flush``, ``weights``), each with its signature
+    names it calls them (``init``, ``link``, ``run``, ``replay``, ``flush``, ``weights``), each with its signature
     for ``state_type`` (the numba type of a :class:`~trivsel.decimation.State`); everything
     else is compiled into their machine code."""
     from numba import types as nt
 
     f8, i8 = nt.float64, nt.int64
     return {"init": (_init, nt.none(state_type, f8)),
+            "link": (_link_all, nt.none(state_type)),
+            "replay": (_replay, i8(state_type, i8[::1], i8[::1], i8)),
             "run": (_run, i8(state_type, i8, f8, f8, f8)),
             "flush": (_flush, nt.none(state_type, f8)),
             "weights": (_weights, nt.Tuple((nt.int64[:, ::1], nt.float64[:, ::1]))(state_type))}
