@@ -24,6 +24,9 @@ the largest job by Snakemake's benchmark files, the count and the errors::
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --fractions 0.05
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --count 362160
     python benchmarks/bench_blocked_decimate.py --jobs f4 --size 257 --block 64 --fractions 0.05
+
+``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
+exact queue down to its share of the count and below).
 """
 
 from __future__ import annotations
@@ -135,6 +138,44 @@ def jobs(source, size, block, fraction=None, count=None, keep=None):
           f"{job} {job_mb / 1024:.2f} | {s['E_rms']:.4g} | {s['fit']['E_rms']:.4g} | {s['E_inf']:.4g} |", flush=True)
 
 
+def phases(source, block, fraction):
+    """Pass 1 on one interior block, its phases timed: the lazy queue to twice its share of the
+    count, then the exact queue to its share, half, a quarter, and to the end."""
+    from trivsel.decimation import EXACT_WITHIN, Decimation
+    from trivsel.decimation.blocked import _block_state, block_cuts
+
+    if source == "t1":
+        from trivsel.study.realdata import REAL, load_nifti, package_file
+
+        package, rel, _ = REAL["icbm152"]
+        d = load_nifti(package_file(package, rel), "icbm152")
+    else:
+        from trivsel.data import sample_grid
+
+        d = sample_grid(int(source[1:]), 4 * block)
+    full = d.values.reshape(d.shape)
+    cuts = [block_cuts(n, block) for n in full.shape]
+    lo = [int(c[len(c) // 2 - 1]) for c in cuts]  # a block away from the box
+    vol = full[lo[0]:lo[0] + block + 1, lo[1]:lo[1] + block + 1, lo[2]:lo[2] + block + 1]
+    S, _, seam = _block_state(vol, lo, full.shape, [c[1:-1] for c in cuts])
+    t = time.perf_counter()
+    dec = Decimation(None, None, None, state=S)
+    share = (~seam).sum() * fraction
+    rows = [("start", time.perf_counter() - t, dec.n_vertices)]
+    t = time.perf_counter()
+    dec.run(int(seam.sum() + EXACT_WITHIN * share))
+    rows.append(("lazy to twice its share", time.perf_counter() - t, dec.n_vertices))
+    dec.lazy = False
+    for f in (1.0, 0.5, 0.25, 0.0):
+        t = time.perf_counter()
+        dec.run(int(seam.sum() + f * share))
+        rows.append((f"exact to {f:g} of its share", time.perf_counter() - t, dec.n_vertices))
+    print(f"{source}: the block at {lo} of {block} intervals ({vol.size} points, {int(seam.sum())} on seams), "
+          f"fraction {fraction:g}")
+    for what, secs, nv in rows:
+        print(f"  {what}: {secs:.2f} s, {nv} vertices")
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop) or fN (function N)")
@@ -145,7 +186,11 @@ def main(argv=None):
     ap.add_argument("--jobs", choices=["t1", "f4"], help="trivsel blocks --method decimate as a whole process")
     ap.add_argument("--count", type=int, help="with --jobs: stop at this count instead of the fractions")
     ap.add_argument("--keep", help="with --jobs: the folder for the runs (default: a new temporary one)")
+    ap.add_argument("--phases", choices=["t1", "f4"], help="pass 1 on one block, its phases timed")
     a = ap.parse_args(argv)
+    if a.phases:
+        phases(a.phases, a.block, a.fractions[0])
+        return
     if a.jobs:
         print("| input | block | target | vertices | wall | largest process GB | largest job GB | E_RMS data | "
               "E_RMS fit | E_inf |")

@@ -109,6 +109,24 @@ def test_a_tolerance_stop_holds_across_the_seams(tmp_path):
     assert s["stopped"] == "no collapse was left that keeps every residual within tol_inf"
 
 
+def test_a_run_stopped_half_way_resumes_to_the_same_mesh(tmp_path, capsys):
+    """A run that Snakemake stops after the third pass's step (its temporary files half used)
+    ends without results; the same command again completes it, to the mesh of one process."""
+    n, block, count = 24, 8, 900
+    vol = sample_grid(4, n).values.reshape((n + 1,) * 3)
+    out = tmp_path / "run"
+    argv = ["blocks", "--function", "4", "--n", str(n), "--block", str(block), "--method", "decimate", "--count",
+            str(count), "--out", str(out), "-c", "2"]
+    assert main(argv + ["--", "--until", "step_3"]) == 1
+    assert "ended without writing summary.json" in capsys.readouterr().err
+    assert (out / "passes" / "3" / "state.npz").exists() and not (out / "summary.json").exists()
+    assert main(argv) == 0
+    _, ids, tets = _read(out / "mesh.vtu")
+    ref = decimate_in_blocks(vol, block, count=count)
+    assert np.array_equal(np.sort(ids), ref["vertices"]) and _same_tets(tets, ref["tets"])
+    assert not list((out / "passes").rglob("*.npz"))  # the temporary files are gone once read
+
+
 def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd):
     from trivsel.blocks import decimate as D
 
@@ -143,7 +161,7 @@ def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     out = tmp_path / "slurm"
     r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", str(n), "--block",
-                        str(block), "--method", "decimate", "--tol-inf", str(tol), "--out", str(out), "--",
+                        str(block), "--method", "decimate", "--tol-inf", str(tol), "--out", str(out), "--verbose", "--",
                         "--executor", "slurm", "--workflow-profile", str(profile),
                         "--slurm-init-seconds-before-status-checks", "5"], capture_output=True, text=True, timeout=1200)
     output = r.stdout + r.stderr

@@ -116,7 +116,10 @@ def build_parser():
                        description="Cut the grid into blocks that share faces, reduce every cut line (1-D), "
                                    "every face (2-D) and every block (3-D, its faces prescribed) to the E_inf "
                                    "tolerance, and merge: OUT/mesh.pvtu (one piece per block), OUT/mesh.vtu "
-                                   "(merged) and OUT/summary.json.  The jobs run through Snakemake: locally "
+                                   "(merged) and OUT/summary.json.  With --method decimate: bottom-up decimation "
+                                   "in blocks (recorded collapse costs, one threshold, regions across the seams) "
+                                   "to --count, --fraction or --tol-inf, the same mesh as trivsel reduce --block.  "
+                                   "The jobs run through Snakemake: locally "
                                    "on -c cores, or on a cluster with Snakemake's arguments after '--', e.g. "
                                    "-- --executor slurm --workflow-profile workflow/profiles/slurm.  Run again "
                                    "to resume a killed run.")
@@ -146,7 +149,8 @@ def build_parser():
     b.add_argument("--job-points", type=int, metavar="N",
                    help="planes and blocks smaller than N grid points are reduced several to a job, one after "
                         "the other in one process (default: 2000000 on a cluster, where each job costs seconds of "
-                        "scheduling; 0, one job per plane and block, on a local run); the results are the same")
+                        "scheduling; 0, one job per plane and block, on a local run); the results are the same "
+                        "(decimate's jobs are x-slabs of blocks and regions already)")
     b.add_argument("-n", "--dry-run", action="store_true",
                    help="show the jobs and their resources; run nothing and create nothing")
     b.add_argument("-v", "--verbose", action="store_true",

@@ -11,9 +11,9 @@ into blocks that share their faces (the *seams*)::
     cut      one cost threshold tau for all the blocks, from the sequences' running
              maxima: the blocks' points left at tau, and the seams' at the blocks'
              density, come to OVERSHOOT times the count asked for
-    blocks   every block again, stopped at its first collapse that costs more than tau:
-             the prefix of its recorded sequence (the runs are deterministic: the same
-             lazy-then-exact queue, switched at the same count)
+    blocks   every block's recorded collapses replayed up to its first that costs more
+             than tau (no cost computed again): the prefix of its recorded sequence
+             (without a count, tau is inf and every block runs to ``tol_inf``)
     regions  a grid of regions of 2 x 2 x 2 blocks, cut through the blocks' middles, so
              that the seams run inside them.  Every vertex is a candidate; it is *free*
              in its region when every tetrahedron around it has its candidates in that
