@@ -639,7 +639,6 @@ def make_config(config):
         plan = Plan.from_dict(extra["plan"])
     else:
         extra = {}
-    if not stages:
         check_plan_size(vol.shape, config.get("block"))
         plan = plan_blocks(vol.shape, config.get("block"))
     if cfg["input"] is not None:

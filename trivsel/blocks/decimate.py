@@ -36,7 +36,8 @@ from pathlib import Path
 import numpy as np
 
 from ..methods import get_method
-from . import JOB_BASE_BYTES, Plan, _atomic_savez, _atomic_write_text, _open, item_name, publish_results, read_config
+from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
+               item_name, publish_results, read_config)
 
 __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "job_resources", "check_job_memory"]
 
@@ -65,13 +66,11 @@ FIT_BYTES_PER_POINT = 150
 def make_config(config, shape):
     """The keys of a run's configuration that ``decimate`` adds (the stop and the values), checked:
     ``count`` (8 to the points) or ``fraction`` (in (0, 1]), and/or ``tol_inf``; ``values``, a list
-    of ``data`` and ``fit``.  Also the plan (the blocks of :func:`plan_decimation`)."""
+    of ``data`` and ``fit``.  Also the plan (the blocks of :func:`plan_decimation`).  ``block`` was
+    checked by :func:`trivsel.blocks.make_config`."""
     from ..exceptions import InputError, shown
 
     N = int(np.prod(shape))
-    block = config.get("block")
-    if isinstance(block, bool) or not isinstance(block, (int, np.integer)) or block < 2:
-        raise InputError(f"block must be a whole number of grid intervals, 2 or more; got {shown(block)}")
     count, fraction = config.get("count"), config.get("fraction")
     if count is not None and fraction is not None:
         raise InputError("give one of count and fraction, not both")
@@ -91,7 +90,7 @@ def make_config(config, shape):
             or len(set(values)) != len(values):
         raise InputError(f"values must be a list of {' and '.join(VALUES)} (each once); got {shown(values)}")
     return {"count": None if count is None else int(count), "fraction": None if fraction is None else float(fraction),
-            "values": list(values), "plan": plan_decimation(shape, int(block)).to_dict()}
+            "values": list(values), "plan": plan_decimation(shape, int(config["block"])).to_dict()}
 
 
 def check_job_memory(full):
@@ -103,13 +102,13 @@ def check_job_memory(full):
     avail = available_bytes()
     if avail is None:
         return
-    plan = plan_decimation(full["plan"]["shape"], full["block"])
+    plan = Plan.from_dict(full["plan"])
     kinds = ("costs", "rcosts", "step", "finish")
     need = {k: job_resources(full, plan, k)[0] * 2**20 for k in kinds}
     kind = max(need, key=need.get)
     if need[kind] <= avail:
         return
-    fits = [b for b in (128, 96, 64, 48, 32, 16) if b < int(full["block"]) and max(
+    fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(
         job_resources({**full, "block": b}, plan_decimation(plan.shape, b), k)[0] for k in ("costs", "rcosts"))
         * 2**20 <= avail]
     fix = (f"use --block {fits[0]}" if fits and kind in ("costs", "rcosts")
@@ -119,13 +118,14 @@ def check_job_memory(full):
 
 
 def block_for_memory(available, *, cores=2):
-    """The largest block of (128, 96, 64, 48, 32, 16) whose region jobs (2 x 2 x 2 blocks, the
-    largest decimations of a run) need at most 1.5 GiB and at most ``available / cores`` bytes."""
-    bound = min(1.5 * 2**30, float(available) / max(int(cores), 1))
-    for b in (128, 96, 64, 48, 32, 16):
+    """The largest block of :data:`~trivsel.blocks.SUGGESTED_BLOCKS` whose region jobs (2 x 2 x 2
+    blocks, the largest decimations of a run) need at most ``SUGGESTED_JOB_BYTES`` and at most
+    ``available / cores`` bytes."""
+    bound = min(SUGGESTED_JOB_BYTES, float(available) / max(int(cores), 1))
+    for b in SUGGESTED_BLOCKS:
         if JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * float(B.REGION * b + 1) ** 3 <= bound:
             return b
-    return 16
+    return SUGGESTED_BLOCKS[-1]
 
 
 def plan_decimation(shape, block) -> Plan:
@@ -263,7 +263,7 @@ def _state(out, st, p):
         return T, owner, isv, isv.copy()
     s = _load(out / "passes" / str(p - 1) / "state.npz")
     plan = _load(out / "passes" / str(p - 1) / "plan.npz")
-    if not len(plan["order"]) and not plan["ran"]:
+    if not plan["ran"]:
         return s["T"], s["owner"], s["isv"], s["cand"]
     dims = st.region_dims(p - 1)
     results = []
@@ -377,7 +377,7 @@ def _finish(out, st):
     """The merged mesh, its errors (and fitted values), one piece per block, the summary.  The
     points' weights and residuals are computed in chunks, never for every point at once."""
     from ..fitting import CHUNK, fit_in_chunks
-    from ..io.pieces import write_piece, write_pvtu
+    from ..io.pieces import write_pvtu
     from ..norms import ErrorSums
     from . import RESULTS, STAGED
 
@@ -426,21 +426,15 @@ def _finish(out, st):
     for b, blk in enumerate(plan.blocks()):
         tets = T[order[bounds[b]:bounds[b + 1]]]
         path = out / "pieces" / f"{item_name(blk)}.vtu"
-        _write_mesh(path, vol, plan.shape, tets, f, fit_at, write_piece)
+        _write_mesh(path, vol, plan.shape, tets, f, fit_at)
         pieces.append(path)
     write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
     if cfg.get("merged", True):
-        _write_mesh(staged / "mesh.vtu", vol, plan.shape, T, f, fit_at, write_piece)
+        _write_mesh(staged / "mesh.vtu", vol, plan.shape, T, f, fit_at)
     tau, _ = _tau(out)
     target = st.target()
     m = len(vertices)
-    if target is not None and m <= target:
-        why = "the count was reached"
-    elif target is None:
-        why = "no collapse was left that keeps every residual within tol_inf"
-    else:
-        why = (f"no more vertices were free in the regions of blocks of {st.block}: a larger block reaches the "
-               "count")
+    why = B.stop_reason(m, target, cfg.get("tol_inf"), st.block)
     summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(len(T)),
                "E_rms": errors["E_rms"], "E_inf": errors["E_inf"], "E_rms_interior": errors["E_rms_interior"],
                "E_inf_interior": errors["E_inf_interior"], "method": "decimate", "target": target,
@@ -456,23 +450,23 @@ def _finish(out, st):
     return summary
 
 
-def _write_mesh(path, vol, shape, tets, f, fit_at, write_piece):
+def _write_mesh(path, vol, shape, tets, f, fit_at):
     """Tetrahedra over global point indices as a .vtu: their vertices sorted by the input's
     point id, with ``value``, ``fitted_value`` (``fit_at``: the vertices and their fitted
     values) and ``original_index``."""
-    ids = np.unique(tets)
+    from ..io.pieces import write_piece
+
+    ids, corners = np.unique(tets, return_inverse=True)
     ijk = np.stack(np.unravel_index(ids, shape), axis=1)
     file_ids = vol.file_ids(ijk)
     order = np.argsort(file_ids, kind="stable")
-    ids, ijk, file_ids = ids[order], ijk[order], file_ids[order]
-    local = np.empty(len(ids), np.int64)
-    local[order] = np.arange(len(ids))
-    # the tetrahedra's corners as rows of the sorted vertices
-    at = np.searchsorted(np.unique(tets), tets)
-    pts = vol.coordinates(ijk)
+    rank = np.empty(len(ids), np.int64)
+    rank[order] = np.arange(len(ids))
+    ids = ids[order]
     arrays = None if fit_at is None else {"fitted_value": fit_at[1][np.searchsorted(fit_at[0], ids)]}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_piece(path, pts, local[at], f[ids], file_ids, overwrite=True, arrays=arrays)
+    write_piece(path, vol.coordinates(ijk[order]), rank[corners.reshape(tets.shape)], f[ids], file_ids[order],
+                overwrite=True, arrays=arrays)
 
 
 def job_resources(cfg, plan, kind):
@@ -502,9 +496,9 @@ def job_resources(cfg, plan, kind):
 def run_job(out, kind, item=""):
     """One job of a run in folder ``out`` (the rules of ``decimate.smk``): ``kind`` with its
     item (``X`` for a slab of blocks, ``P`` for a pass, ``P_R`` for slab R of pass P's regions)."""
-    cfg, _ = read_config(out)
+    cfg, plan = read_config(out)
     out = Path(out)
-    st = Stages(cfg, plan_decimation(cfg["plan"]["shape"], cfg["block"]))
+    st = Stages(cfg, plan)
     if kind == "kernels":
         get_method("decimate").compile_kernels()
     elif kind == "costs":

@@ -15,10 +15,9 @@
 import sys
 
 from trivsel.blocks import item_name, read_config
-from trivsel.blocks.decimate import Stages, job_resources, plan_decimation
+from trivsel.blocks.decimate import Stages, job_resources
 
-CFG, _ = read_config(".")
-PLAN = plan_decimation(CFG["plan"]["shape"], CFG["block"])
+CFG, PLAN = read_config(".")
 ST = Stages(CFG, PLAN)
 PY = sys.executable
 PASSES = range(len(ST.passes))

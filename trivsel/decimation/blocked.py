@@ -52,7 +52,7 @@ from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "assemble",
            "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
-           "decimate_in_blocks", "point_weights", "point_weights_of", "reduce_in_blocks"]
+           "decimate_in_blocks", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -502,6 +502,17 @@ def _region_apply(k):
                            quota=None if sh["quota"] is None else sh["quota"][k])
 
 
+def stop_reason(vertices, target, tol_inf, block):
+    """Why a run in blocks stopped with ``vertices`` vertices (asked for ``target``, or None)."""
+    if target is not None and vertices <= target:
+        return "the count was reached"
+    if tol_inf is not None:
+        return "no collapse was left that keeps every residual within tol_inf"
+    # the tetrahedra grew as large as the regions: few of their vertices were free in any
+    return (f"no more vertices were free in the regions of blocks of {block}: a larger block (or one piece) "
+            "reaches the count")
+
+
 def point_weights(shape, tets, ptet):
     """For every point of the grid ``shape``, the 4 vertices of the tetrahedron that holds it
     (``tets[ptet[p]]``) and its barycentric weights there, from integer determinants (a
@@ -573,13 +584,7 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
     if progress is not None:
         progress(m, target or m, shot.errors["E_rms"], shot.errors["E_inf"], time.perf_counter() - t_start)
     st = out["stats"]
-    if target is not None and m <= target:
-        why = "the count was reached"
-    elif tol_inf is not None:
-        why = "no collapse was left that keeps every residual within tol_inf"
-    else:  # the tetrahedra grew as large as the regions: few of their vertices were free in any
-        why = (f"no more vertices were free in the regions of blocks of {block}: a larger block (or one piece) "
-               "reaches the count")
-    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": why, "blocks": st["blocks"],
+    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": stop_reason(m, target, tol_inf, block),
+             "blocks": st["blocks"],
              "cost_threshold": st["tau"], "after_blocks": st["after_blocks"], "after_regions": st["after_seams"]}
     return [shot], out["vertices"], stats, time.perf_counter() - te
