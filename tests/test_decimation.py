@@ -464,3 +464,21 @@ def test_a_replay_of_the_recorded_collapses_gives_the_same_mesh():
     assert np.array_equal(a.residuals(), b.residuals()) and b.n_vertices == 600
     assert np.array_equal(b.removed(), a.removed()) and np.array_equal(b.into(), a.into())
     assert b.compactions > 0
+
+
+def test_blocks_hold_their_indices_in_int32_with_the_meshes_of_int64(monkeypatch):
+    """The passes' whole-grid arrays (tetrahedra, each point's tetrahedron, region ids) are int32
+    while the indices fit (``index_type``) and give the meshes that int64 gives."""
+    from trivsel.data import sample_grid
+    from trivsel.decimation import blocked
+
+    assert blocked.index_type(2**31 - 1) is np.int32 and blocked.index_type(2**31) is np.int64
+    d = sample_grid(4, 32)
+    vol = d.values.reshape(d.shape)
+    small = blocked.decimate_in_blocks(vol, 12, fraction=0.05)
+    assert small["tets"].dtype == np.int32 and small["ptet"].dtype == np.int32
+    monkeypatch.setattr(blocked, "index_type", lambda n: np.int64)
+    wide = blocked.decimate_in_blocks(vol, 12, fraction=0.05)
+    assert wide["tets"].dtype == np.int64 and wide["ptet"].dtype == np.int64
+    assert np.array_equal(small["tets"], wide["tets"]) and np.array_equal(small["ptet"], wide["ptet"])
+    assert np.array_equal(small["vertices"], wide["vertices"])

@@ -50,7 +50,8 @@ import numpy as np
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
-__all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "assemble",
+__all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
+           "assemble",
            "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
            "decimate_in_blocks", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
@@ -192,21 +193,31 @@ def threshold(runmax, inner, seam_points, target):
     return float(cand[lo])
 
 
+def index_type(n):
+    """The integer type of indices below ``n``: int32 while they fit (the whole-grid arrays of
+    the passes, point ids and tetrahedron rows, take half the memory), else int64."""
+    return np.int32 if n < 2**31 else np.int64
+
+
 def assemble(N, meshes, runmax=None, names=None):
     """The blocks' meshes (``(tets, inside, rows, n_removed)`` each, :func:`block_mesh`) as one
     mesh state: tetrahedra ``T``, each point's row of ``T`` (``owner``, -1 for vertices) and
-    the vertex flags.  With ``runmax``, each block's collapse count is checked against its
-    recorded sequence cut at the threshold (passed as ``runmax[i]``'s count)."""
-    tets, owner, isv = [], np.full(N, -1, np.int64), np.ones(N, bool)
+    the vertex flags (indices of :func:`index_type`).  With ``runmax``, each block's collapse
+    count is checked against its recorded sequence cut at the threshold (passed as
+    ``runmax[i]``'s count)."""
+    meshes = list(meshes)
+    M = sum(len(m[0]) for m in meshes)
+    T = np.empty((M, 4), index_type(N))
+    owner, isv = np.full(N, -1, index_type(M)), np.ones(N, bool)
     base = 0
-    for i, (T, inside, rows, n_removed) in enumerate(meshes):
+    for i, (tets, inside, rows, n_removed) in enumerate(meshes):
         if runmax is not None and n_removed != runmax[i]:
             raise RuntimeError(f"block {names[i] if names else i} did not repeat its recorded collapses")
         owner[inside] = base + rows
         isv[inside] = False
-        tets.append(T)
-        base += len(T)
-    return np.concatenate(tets), owner, isv
+        T[base:base + len(tets)] = tets
+        base += len(tets)
+    return T, owner, isv
 
 
 def pass_plan(shape, T, owner, isv, cand, offset, size):
@@ -221,11 +232,11 @@ def pass_plan(shape, T, owner, isv, cand, offset, size):
     dims, shift = region_grid(shape, offset, size)
     c = np.flatnonzero(cand)
     r3 = (np.stack(np.unravel_index(c, shape), axis=1) + shift) // size  # the candidates' regions per axis
-    rid = np.full(len(isv), -1, np.int64)
+    rid = np.full(len(isv), -1, index_type(int(np.prod(dims))))
     rid[c] = (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2]
     del c, r3
     R = rid[T]
-    rmin = np.where(R >= 0, R, np.iinfo(np.int64).max).min(axis=1)
+    rmin = np.where(R >= 0, R, np.iinfo(rid.dtype).max).min(axis=1)
     rmax = R.max(axis=1)
     del R
     conflict = (rmax >= 0) & (rmin != rmax)
@@ -239,11 +250,11 @@ def pass_plan(shape, T, owner, isv, cand, offset, size):
     ends = np.r_[starts[1:], len(order)].astype(np.int64)
     region = treg[order][starts] if len(order) else np.zeros(0, np.int64)
     # the points inside each region's tetrahedra, by region
-    pts = np.flatnonzero(~isv)
+    pts = np.flatnonzero(~isv).astype(index_type(len(isv)))
     pts = pts[treg[owner[pts]] >= 0]
     pts = pts[np.argsort(treg[owner[pts]], kind="stable")]
     pkeys = treg[owner[pts]]
-    row_of = np.full(len(T), -1, np.int64)  # a tetrahedron's row in its region
+    row_of = np.full(len(T), -1, index_type(len(T)))  # a tetrahedron's row in its region
     for s, e in zip(starts, ends):
         row_of[order[s:e]] = np.arange(e - s)
     nfree = np.bincount(np.searchsorted(region, rid[free]), minlength=len(starts))
@@ -332,11 +343,18 @@ def merge_pass(T, owner, isv, plan, results):
         base += len(nt)
         keep[plan["order"][plan["starts"][k]:plan["ends"][k]]] = False
     kept_rows = np.cumsum(keep) - 1
-    owner = owner.copy()
+    nkeep = int(keep.sum())
+    M = nkeep + base
+    owner = owner.astype(index_type(M))  # a copy
     moved = ~isv & (owner >= 0)
     owner[moved] = kept_rows[owner[moved]]  # points of unchanged tetrahedra: their new rows
-    nkeep = int(keep.sum())
-    T2 = np.concatenate([T[keep]] + new_T) if new_T else T[keep]
+    del kept_rows, moved
+    T2 = np.empty((M, 4), T.dtype)
+    T2[:nkeep] = T[keep]
+    at = nkeep
+    for nt in new_T:
+        T2[at:at + len(nt)] = nt
+        at += len(nt)
     for p, r in zip(new_pts, new_rows):
         owner[p] = nkeep + r
     return T2, owner, isv, removed
