@@ -19,10 +19,15 @@ memory, a real volume, and the plan of a 1025^3 run.
         (the loopback SLURM of scripts/slurm-local.sh, which must be running): wall times, cluster
         jobs submitted, and the two results compared.  ``--ungrouped`` adds a SLURM run with one
         cluster job per plane and per block (``--job-points 0``).
-    python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--from FOLDER]
+    python benchmarks/bench_blocks.py plan [--n 1024] [--block 128] [--measured FOLDER]
         The jobs and resources of a 1025^3 run (``-n``; the .pvtu output, no merged .vtu,
         which would need tens of GB in one job at this size), and its core-hours estimated from
         the block jobs' seconds per point of a finished run (FOLDER, e.g. the ``big`` run's).
+    python benchmarks/bench_blocks.py plan --method decimate [--n 1024] [--block 64] [--fraction 0.05]
+            [--measured FOLDER]
+        The same for ``--method decimate`` (as the SLURM executor would submit it), its
+        core-hours from every job of a finished decimate run (e.g. the folder
+        ``bench_blocked_decimate.py --jobs f4 --size 257 --keep DIR`` leaves).
 
 Outputs go under benchmarks/results/blocks/ (not in git).  The figures of a run on this
 machine are in benchmarks/README.md.
@@ -246,6 +251,8 @@ def slurm(a):
 
 
 def plan(a):
+    if a.method == "decimate":
+        return plan_decimate(a)
     from trivsel.blocks import item_name, plan_blocks, read_config
 
     out = RESULTS / f"plan_n{a.n}_b{a.block}"
@@ -280,6 +287,39 @@ def plan(a):
               f"(lines, planes and merge scaled by the points)")
 
 
+def plan_decimate(a):
+    """The jobs and requests of ``trivsel blocks --method decimate`` on an (n+1)^3 grid, as a
+    cluster runs them (Snakemake's dry run with the SLURM executor: a local run of this size is
+    refused for memory), and, from a finished run (``--measured``), its core-hours: every job's
+    seconds but the kernels' scaled by the points (each stage's work is per point)."""
+    from trivsel.blocks import read_config
+
+    out = RESULTS / f"plan_decimate_n{a.n}_b{a.block}"
+    shutil.rmtree(out, ignore_errors=True)
+    cmd = [sys.executable, "-m", "trivsel", "blocks", "--function", str(a.function), "--n", str(a.n), "--block",
+           str(a.block), "--method", "decimate", "--fraction", str(a.fraction), "--no-merged", "--out", str(out),
+           "-n", "--", "--executor", "slurm", "--jobs", "100"]
+    r = subprocess.run(cmd, capture_output=True, text=True)
+    if r.returncode != 0:
+        sys.exit(r.stderr[-4000:])
+    text = r.stdout + r.stderr
+    lines = text.splitlines()
+    start = next(i for i, ln in enumerate(lines) if ln.split()[:2] == ["job", "count"])
+    end = next(i for i in range(start, len(lines)) if lines[i].startswith("total"))
+    print("\n".join(lines[start:end + 1]))
+    mem = [int(m) for m in re.findall(r"mem_mb=(\d+)", text)]
+    runtime = [int(m) for m in re.findall(r"runtime=(\d+)", text)]
+    print(f"requests: mem_mb up to {max(mem)}, runtime up to {max(runtime)} min")
+    if a.measured:
+        _, mplan = read_config(a.measured)
+        rows = [row for row in job_table(a.measured) if row["rule"] != "kernels"]
+        secs = sum(row["s"] for row in rows)
+        N = (a.n + 1) ** 3
+        est = secs * N / mplan.n_points() / 3600
+        print(f"measured {secs:.0f} job seconds for {mplan.n_points():,} points ({a.measured}); estimate "
+              f"{est:.1f} core-hours for {a.n + 1}^3 ({N:,} points, scaled by the points)")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("what", choices=["seams", "big", "icbm", "plan", "local", "slurm"])
@@ -289,6 +329,9 @@ def main():
     ap.add_argument("--tol", type=float)
     ap.add_argument("--cores", type=int, default=2)
     ap.add_argument("--measured", help="plan: a finished run's folder for the seconds per point")
+    ap.add_argument("--method", choices=["greedy", "decimate"], default="greedy",
+                    help="plan: the method (decimate: the jobs of --method decimate, stopped by --fraction)")
+    ap.add_argument("--fraction", type=float, default=0.05, help="plan --method decimate: the kept fraction")
     ap.add_argument("--input", help="seams, local: a volume (e.g. a .zarr) whose central (n+1)^3 crop is reduced")
     ap.add_argument("--blocks", type=int, nargs="+", default=[8, 12, 47], help="local: block sizes")
     ap.add_argument("--tols", type=float, nargs="+", default=[8.0, 10.0], help="local: E_inf tolerances")
