@@ -250,6 +250,13 @@ def slurm(a):
     print("results identical:", all(r == first for r in results.values()))
 
 
+def print_requests(text):
+    """The largest memory and runtime requests of a Snakemake dry run's jobs."""
+    mem = [int(m) for m in re.findall(r"mem_mb=(\d+)", text)]
+    runtime = [int(m) for m in re.findall(r"runtime=(\d+)", text)]
+    print(f"requests: mem_mb up to {max(mem)}, runtime up to {max(runtime)} min")
+
+
 def plan(a):
     if a.method == "decimate":
         return plan_decimate(a)
@@ -266,9 +273,7 @@ def plan(a):
     table = [ln for ln in text.splitlines() if ln.split()[:1] and ln.split()[0] in
              ("job", "kernels", "lines", "plane", "block", "merge", "all", "total")]
     print("\n".join(table[:table.index(next(ln for ln in table if ln.startswith("total"))) + 1]))
-    mem = [int(m) for m in re.findall(r"mem_mb=(\d+)", text)]
-    runtime = [int(m) for m in re.findall(r"runtime=(\d+)", text)]
-    print(f"requests: mem_mb up to {max(mem)}, runtime up to {max(runtime)} min")
+    print_requests(text)
     p = plan_blocks((a.n + 1,) * 3, a.block)
     pts = sum(int(np.prod([hi - lo for lo, hi in p.block_region(b)])) for b in p.blocks())
     print(f"{len(p.blocks())} blocks, {len(p.planes())} planes, {len(p.lines())} lines; "
@@ -307,9 +312,7 @@ def plan_decimate(a):
     start = next(i for i, ln in enumerate(lines) if ln.split()[:2] == ["job", "count"])
     end = next(i for i in range(start, len(lines)) if lines[i].startswith("total"))
     print("\n".join(lines[start:end + 1]))
-    mem = [int(m) for m in re.findall(r"mem_mb=(\d+)", text)]
-    runtime = [int(m) for m in re.findall(r"runtime=(\d+)", text)]
-    print(f"requests: mem_mb up to {max(mem)}, runtime up to {max(runtime)} min")
+    print_requests(text)
     if a.measured:
         _, mplan = read_config(a.measured)
         rows = [row for row in job_table(a.measured) if row["rule"] != "kernels"]

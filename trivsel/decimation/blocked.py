@@ -51,8 +51,7 @@ from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
-           "assemble",
-           "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
+           "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
            "decimate_in_blocks", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
@@ -202,22 +201,20 @@ def index_type(n):
 def assemble(N, meshes, runmax=None, names=None):
     """The blocks' meshes (``(tets, inside, rows, n_removed)`` each, :func:`block_mesh`) as one
     mesh state: tetrahedra ``T``, each point's row of ``T`` (``owner``, -1 for vertices) and
-    the vertex flags (indices of :func:`index_type`).  With ``runmax``, each block's collapse
-    count is checked against its recorded sequence cut at the threshold (passed as
-    ``runmax[i]``'s count)."""
-    meshes = list(meshes)
-    M = sum(len(m[0]) for m in meshes)
-    T = np.empty((M, 4), index_type(N))
-    owner, isv = np.full(N, -1, index_type(M)), np.ones(N, bool)
+    the vertex flags (indices of :func:`index_type`; a grid has fewer than 6 N tetrahedra).
+    ``meshes`` is read once, one block at a time.  With ``runmax``, each block's collapse count
+    is checked against its recorded sequence cut at the threshold (passed as ``runmax[i]``'s
+    count)."""
+    tets, owner, isv = [], np.full(N, -1, index_type(6 * N)), np.ones(N, bool)
     base = 0
-    for i, (tets, inside, rows, n_removed) in enumerate(meshes):
+    for i, (T, inside, rows, n_removed) in enumerate(meshes):
         if runmax is not None and n_removed != runmax[i]:
             raise RuntimeError(f"block {names[i] if names else i} did not repeat its recorded collapses")
         owner[inside] = base + rows
         isv[inside] = False
-        T[base:base + len(tets)] = tets
-        base += len(tets)
-    return T, owner, isv
+        tets.append(np.asarray(T, index_type(N)))
+        base += len(T)
+    return np.concatenate(tets), owner, isv
 
 
 def pass_plan(shape, T, owner, isv, cand, offset, size):
@@ -603,6 +600,6 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
         progress(m, target or m, shot.errors["E_rms"], shot.errors["E_inf"], time.perf_counter() - t_start)
     st = out["stats"]
     stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": stop_reason(m, target, tol_inf, block),
-             "blocks": st["blocks"],
-             "cost_threshold": st["tau"], "after_blocks": st["after_blocks"], "after_regions": st["after_seams"]}
+             "blocks": st["blocks"], "cost_threshold": st["tau"], "after_blocks": st["after_blocks"],
+             "after_regions": st["after_seams"]}
     return [shot], out["vertices"], stats, time.perf_counter() - te
