@@ -12,6 +12,13 @@ ratios blocked / unblocked of E_RMS with data values, E_RMS with fitted values (
 on each mesh, :func:`trivsel.fitting.fit_vertex_values`) and E_inf with data values, and the
 seconds of both.  ``t1`` is the central crop of the ICBM152 2009a T1 (nilearn's wheel: the
 ``realdata`` extra), ``f4`` the paper's function 4 sampled on the same number of points.
+``--tol-rms`` compares at one tolerance instead: the unblocked run to each fraction, its E_RMS
+(data values) the tolerance of the blocked run (``tol_rms``: a squared-error budget its stages
+share).  Prints the blocked run's count against the unblocked one's, its E_RMS against the
+tolerance (at most 1 by construction) and the seconds of both::
+
+    python benchmarks/bench_blocked_decimate.py --tol-rms --volumes t1 f4 --size 129 --block 32
+
 ``--whole-t1`` runs the blocked decimation alone on the whole 1 mm template (8.7 M points) and
 prints its time, its count and its process's peak memory.
 
@@ -24,6 +31,7 @@ the largest job by Snakemake's benchmark files, the count and the errors::
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --fractions 0.05
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --count 362160
     python benchmarks/bench_blocked_decimate.py --jobs f4 --size 257 --block 64 --fractions 0.05
+    python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --rms 1.16
 
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
 exact queue down to its share of the count and below).
@@ -54,25 +62,34 @@ def volume(name, size):
     return d.values.reshape(d.shape)
 
 
-def compare(name, vol, block, fraction):
+def blocked(vol, block, **stop):
+    """The blocked run to ``stop``, its mesh checked (a conforming tetrahedralisation of the box,
+    every point inside its tetrahedron): the run, its seconds, each point's vertices and weights
+    and its residuals with data values."""
     from trivsel.blocks import check_tetrahedra
+    from trivsel.decimation.blocked import decimate_in_blocks, point_weights
+
+    f = vol.reshape(-1).astype(float)
+    t = time.perf_counter()
+    out = decimate_in_blocks(vol, block, **stop)
+    tb = time.perf_counter() - t
+    check_tetrahedra(vol.shape, out["tets"])
+    verts, w = point_weights(vol.shape, out["tets"], out["ptet"])
+    if w.min() < 0:
+        raise SystemExit("a point lies outside the tetrahedron that holds it")
+    return out, tb, verts, w, f - np.einsum("ij,ij->i", w, f[verts])
+
+
+def compare(name, vol, block, fraction):
     from trivsel.data import grid_from_array
     from trivsel.decimation import reduce_by_collapse
-    from trivsel.decimation.blocked import decimate_in_blocks, point_weights
     from trivsel.fitting import fit_vertex_values
     from trivsel.norms import error_norms
 
     data = grid_from_array(vol)
     interior = data.interior_mask()
     f = vol.reshape(-1).astype(float)
-    t = time.perf_counter()
-    out = decimate_in_blocks(vol, block, fraction=fraction)
-    tb = time.perf_counter() - t
-    check_tetrahedra(vol.shape, out["tets"])
-    verts, w = point_weights(vol.shape, out["tets"], out["ptet"])
-    if w.min() < 0:
-        raise SystemExit("a point lies outside the tetrahedron that holds it")
-    r = f - np.einsum("ij,ij->i", w, f[verts])
+    out, tb, verts, w, r = blocked(vol, block, fraction=fraction)
     _, rf = fit_vertex_values(verts, w, f, out["vertices"])
     C = len(out["vertices"])
     t = time.perf_counter()
@@ -83,6 +100,23 @@ def compare(name, vol, block, fraction):
     return (f"| {name} | {block} | {fraction:g} | {round(fraction * vol.size)} | {C} | "
             f"{eb['E_rms'] / eu['E_rms']:.3f} | {ebf['E_rms'] / euf['E_rms']:.3f} | {eb['E_inf'] / eu['E_inf']:.3f} | "
             f"{eu['E_rms']:.4g}, {euf['E_rms']:.4g}, {eu['E_inf']:.4g} | {tb:.0f}, {tu:.0f} |")
+
+
+def compare_tol(name, vol, block, fraction):
+    """One row of ``--tol-rms``: unblocked to ``fraction``, then blocked to its E_RMS."""
+    from trivsel.data import grid_from_array
+    from trivsel.decimation import reduce_by_collapse
+    from trivsel.selection import count_for_fraction
+
+    m = count_for_fraction(fraction, vol.size)
+    t = time.perf_counter()
+    shots, *_ = reduce_by_collapse(grid_from_array(vol), [m])
+    tu = time.perf_counter() - t
+    tol = float(np.sqrt(np.mean(shots[-1].residuals ** 2)))
+    out, tb, _, _, r = blocked(vol, block, tol_rms=tol)
+    e = float(np.sqrt(np.mean(r ** 2)))
+    C = len(out["vertices"])
+    return f"| {name} | {block} | {fraction:g} | {tol:.4g} | {m} | {C} | {C / m:.4f} | {e / tol:.6f} | {tb:.0f}, {tu:.0f} |"
 
 
 def whole_t1(block, fraction):
@@ -100,7 +134,7 @@ def whole_t1(block, fraction):
           f"in {took:.0f} s, peak {peak:.2f} GB (one process); {out['stats']}")
 
 
-def jobs(source, size, block, fraction=None, count=None, keep=None):
+def jobs(source, size, block, fraction=None, count=None, keep=None, rms=None):
     """One ``trivsel blocks --method decimate`` run as a whole process (see the module docstring)."""
     import json
     import re
@@ -119,8 +153,9 @@ def jobs(source, size, block, fraction=None, count=None, keep=None):
         src = [str(store)]
     else:
         src = ["--function", source[1:], "--n", str(size - 1)]
-    stop = ["--count", str(count)] if count is not None else ["--fraction", str(fraction)]
-    out = folder / f"run-{source}-{block}-{count if count is not None else fraction}"
+    stop, name = ((["--count", str(count)], count) if count is not None else (["--tol-rms", str(rms)], f"rms{rms}")
+                  if rms is not None else (["--fraction", str(fraction)], fraction))
+    out = folder / f"run-{source}-{block}-{name}"
     cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "trivsel", "blocks", *src, "--block", str(block), "--method",
            "decimate", *stop, "--values", "data", "fit", "--out", str(out), "-c", "2"]
     p = subprocess.run(cmd, capture_output=True, text=True)
@@ -134,7 +169,8 @@ def jobs(source, size, block, fraction=None, count=None, keep=None):
         rows.append((float(vals[2]), str(tsv.relative_to(out / "benchmarks").with_suffix(""))))
     job_mb, job = max(rows)
     s = json.loads((out / "summary.json").read_text())
-    print(f"| {source} {s['points']:,} points | {block} | {s['target']:,} | {s['vertices']:,} | {wall} | {peak:.2f} | "
+    target = f"{s['target']:,}" if s["target"] is not None else f"tol_rms {s['tol_rms']:g}"
+    print(f"| {source} {s['points']:,} points | {block} | {target} | {s['vertices']:,} | {wall} | {peak:.2f} | "
           f"{job} {job_mb / 1024:.2f} | {s['E_rms']:.4g} | {s['fit']['E_rms']:.4g} | {s['E_inf']:.4g} |", flush=True)
 
 
@@ -185,8 +221,11 @@ def main(argv=None):
     ap.add_argument("--whole-t1", action="store_true", help="the blocked run alone on the whole T1 template")
     ap.add_argument("--jobs", choices=["t1", "f4"], help="trivsel blocks --method decimate as a whole process")
     ap.add_argument("--count", type=int, help="with --jobs: stop at this count instead of the fractions")
+    ap.add_argument("--rms", type=float, help="with --jobs: stop at this E_RMS tolerance instead of the fractions")
     ap.add_argument("--keep", help="with --jobs: the folder for the runs (default: a new temporary one)")
     ap.add_argument("--phases", choices=["t1", "f4"], help="pass 1 on one block, its phases timed")
+    ap.add_argument("--tol-rms", action="store_true",
+                    help="blocked to the unblocked run's E_RMS at each fraction, not to its count")
     a = ap.parse_args(argv)
     if a.phases:
         phases(a.phases, a.block, a.fractions[0])
@@ -195,20 +234,25 @@ def main(argv=None):
         print("| input | block | target | vertices | wall | largest process GB | largest job GB | E_RMS data | "
               "E_RMS fit | E_inf |")
         print("|---|---|---|---|---|---|---|---|---|---|")
-        for fr in [None] if a.count is not None else a.fractions:
-            jobs(a.jobs, a.size, a.block, fraction=fr, count=a.count, keep=a.keep)
+        for fr in [None] if a.count is not None or a.rms is not None else a.fractions:
+            jobs(a.jobs, a.size, a.block, fraction=fr, count=a.count, keep=a.keep, rms=a.rms)
         return
     if a.whole_t1:
         for fr in a.fractions:
             whole_t1(a.block, fr)
         return
-    print("| volume | block | fraction | target | vertices | E_RMS data | E_RMS fit | E_inf data | unblocked E_RMS, "
-          "fit, E_inf | seconds blocked, unblocked |")
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    if a.tol_rms:
+        head, row = ("| volume | block | fraction | tol_rms (unblocked E_RMS) | unblocked vertices | blocked vertices | "
+                     "ratio | blocked E_RMS / tol_rms | seconds blocked, unblocked |"), compare_tol
+    else:
+        head, row = ("| volume | block | fraction | target | vertices | E_RMS data | E_RMS fit | E_inf data | "
+                     "unblocked E_RMS, fit, E_inf | seconds blocked, unblocked |"), compare
+    print(head)
+    print("|---" * (head.count("|") - 1) + "|")
     for name in a.volumes:
         vol = volume(name, a.size)
         for fr in a.fractions:
-            print(compare(f"{name} {a.size}^3", vol, a.block, fr), flush=True)
+            print(row(f"{name} {a.size}^3", vol, a.block, fr), flush=True)
 
 
 if __name__ == "__main__":

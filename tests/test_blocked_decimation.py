@@ -99,6 +99,40 @@ def test_an_e_inf_tolerance_holds_for_every_point_across_the_seams():
     assert len(out["vertices"]) < 0.5 * vol.size  # the seams were freed, not kept
 
 
+def rms(r):
+    return float(np.sqrt(np.mean(r ** 2)))
+
+
+def test_an_e_rms_tolerance_holds_across_the_seams_with_about_the_count_of_one_piece():
+    """With ``tol_rms`` the stages share the budget ``tol_rms^2 N``: the merged mesh's E_RMS is
+    within the tolerance, its squared error within the bound the run reports, and it keeps about
+    as many vertices as one piece at that tolerance (measured on f4 at 49^3 in blocks of 16, at
+    one piece's E_RMS at 5 %: 1.008x its count; at 10 %: 1.003x)."""
+    vol = f4(48)
+    m = count_for_fraction(0.05, vol.size)
+    shots, *_ = reduce_by_collapse(grid_from_array(vol), [m])
+    tol = rms(shots[-1].residuals)
+    out = decimate_in_blocks(vol, 16, tol_rms=tol)
+    check_tetrahedra(vol.shape, out["tets"])
+    r = residuals(vol, out)
+    assert rms(r) <= tol
+    assert np.sum(r ** 2) <= out["stats"]["sse_bound"] * (1 + 1e-9) <= tol ** 2 * vol.size
+    assert len(out["vertices"]) <= 1.03 * m
+
+
+@pytest.mark.parametrize("first", ["count", "tol_rms"])
+def test_a_count_and_an_e_rms_tolerance_stop_at_whichever_comes_first(first):
+    vol = smooth_volume((30, 30, 30), seed=5)
+    if first == "count":  # twice the E_RMS of the run to the count alone
+        tol = 2 * rms(residuals(vol, decimate_in_blocks(vol, 10, count=900)))
+    else:  # half one piece's E_RMS at the count: out of reach at that count
+        tol = rms(reduce_by_collapse(grid_from_array(vol), [900])[0][-1].residuals) / 2
+    out = decimate_in_blocks(vol, 10, count=900, tol_rms=tol)
+    check_tetrahedra(vol.shape, out["tets"])
+    assert rms(residuals(vol, out)) <= tol
+    assert (len(out["vertices"]) == 900) == (first == "count")
+
+
 def test_identical_runs_give_identical_meshes_in_one_process_or_two():
     vol = smooth_volume((25, 25, 25), seed=7)
     a, b, c = (decimate_in_blocks(vol, 8, count=900, threads=t) for t in (1, 1, 2))
@@ -120,6 +154,11 @@ def test_reduce_with_block_gives_the_count_and_errors_of_its_mesh():
     assert np.allclose(residuals(vol, out), s.residuals, atol=1e-12)
     assert s.fit["errors"]["E_rms"] <= s.errors["E_rms"]
     assert r.options["block"] == 10
+    # to an E_RMS tolerance: the mesh of decimate_in_blocks, within it
+    tol = 0.9 * s.errors["E_rms"]
+    (t,) = trivsel.reduce(vol, tol_rms=tol, method="decimate", block=10).snapshots
+    assert np.array_equal(t.tets, decimate_in_blocks(vol, 10, tol_rms=tol)["tets"])
+    assert t.errors["E_rms"] <= tol
 
 
 def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short(tmp_path, monkeypatch, capsys):

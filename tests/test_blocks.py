@@ -628,9 +628,9 @@ def _memory_refusal(tmp_path, capsys, monkeypatch, *args):
 
 @pytest.mark.parametrize("args, expect", [
     (["--method", "decimate", "--tol-inf", "0.05"], "--method decimate --block 16 --tol-inf 0.05 --out {out} -c 2"),
-    (["--method", "decimate", "--tol-rms", "0.05"],
-     "--block 16 --tol-inf TOL --method greedy --out {out} -c 2 (blocks stop at an E_inf tolerance TOL; they run "
-     "paper or greedy)"),
+    (["--method", "decimate", "--tol-rms", "0.05"], "--method decimate --block 16 --tol-rms 0.05 --out {out} -c 2"),
+    (["--method", "greedy", "--tol-rms", "0.05"],
+     "--block 16 --tol-inf TOL --method greedy --out {out} -c 2 (blocks stop at an E_inf tolerance TOL)"),
     (["--method", "paper", "--fractions", "0.1"],
      "--block 16 --tol-inf TOL --method paper --out {out} -c 2 (blocks stop at an E_inf tolerance TOL)"),
 ])

@@ -91,13 +91,17 @@ def test_a_nifti_file_fraction_and_fitted_values_match_reduce_with_block(tmp_pat
     assert f"fitted values: E_rms {s['fit']['E_rms']:.4g}" in err
 
 
-def test_a_tolerance_stop_holds_across_the_seams(tmp_path):
-    n, block, tol = 24, 8, 0.02
+@pytest.mark.parametrize("stop, tol, error, why", [
+    ("tol_inf", 0.02, "E_inf", "no collapse was left that keeps every residual within tol_inf"),
+    ("tol_rms", 0.004, "E_rms", "the next collapses would raise E_RMS above tol_rms"),
+])
+def test_a_tolerance_stop_holds_across_the_seams(tmp_path, stop, tol, error, why):
+    n, block = 24, 8
     vol = sample_grid(4, n).values.reshape((n + 1,) * 3)
     out = tmp_path / "run"
     assert main(["blocks", "--function", "4", "--n", str(n), "--block", str(block), "--method", "decimate",
-                 "--tol-inf", str(tol), "--no-merged", "--out", str(out), "-c", "2"]) == 0
-    ref = decimate_in_blocks(vol, block, tol_inf=tol)
+                 f"--{stop.replace('_', '-')}", str(tol), "--no-merged", "--out", str(out), "-c", "2"]) == 0
+    ref = decimate_in_blocks(vol, block, **{stop: tol})
     import pyvista as pv
 
     whole = pv.read(out / "mesh.pvtu")
@@ -105,8 +109,8 @@ def test_a_tolerance_stop_holds_across_the_seams(tmp_path):
     tets = ids[np.asarray(whole.cells).reshape(-1, 5)[:, 1:]]
     assert _same_tets(tets, ref["tets"]) and not (out / "mesh.vtu").exists()
     s = json.loads((out / "summary.json").read_text())
-    assert s["vertices"] == len(ref["vertices"]) and s["E_inf"] <= tol
-    assert s["stopped"] == "no collapse was left that keeps every residual within tol_inf"
+    assert s["vertices"] == len(ref["vertices"]) and s[error] <= tol and s[stop] == tol
+    assert s["stopped"] == why
 
 
 def test_a_run_stopped_half_way_resumes_to_the_same_mesh(tmp_path, capsys):
@@ -136,6 +140,7 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     st = D.Stages({"block": 64, "fraction": 0.05, "plan": plan.to_dict()}, plan)
     assert [k for k, _ in st.passes] == ["seams"] * 3 + ["quota"] * 4 and st.target() == 433764
     assert D.Stages({"block": 64, "tol_inf": 1.0, "plan": plan.to_dict()}, plan).passes == st.passes[:3]
+    assert D.Stages({"block": 64, "tol_rms": 1.0, "plan": plan.to_dict()}, plan).passes == st.passes  # a budget
     # a block job holds one block's decimation; a region job one region's (2 x 2 x 2 blocks)
     mb = {k: D.job_resources(full, plan, k)[0] for k in ("costs", "rcosts", "step", "finish")}
     assert mb["costs"] < mb["rcosts"] < 2600 and mb["rcosts"] > 2000

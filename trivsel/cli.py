@@ -118,7 +118,8 @@ def build_parser():
                                    "tolerance, and merge: OUT/mesh.pvtu (one piece per block), OUT/mesh.vtu "
                                    "(merged) and OUT/summary.json.  With --method decimate: bottom-up decimation "
                                    "in blocks (recorded collapse costs, one threshold, regions across the seams) "
-                                   "to --count, --fraction or --tol-inf, the same mesh as trivsel reduce --block.  "
+                                   "to --count, --fraction, --tol-rms or --tol-inf, the same mesh as trivsel reduce "
+                                   "--block.  "
                                    "The jobs run through Snakemake: locally "
                                    "on -c cores, or on a cluster with Snakemake's arguments after '--', e.g. "
                                    "-- --executor slurm --workflow-profile workflow/profiles/slurm.  Run again "
@@ -131,15 +132,18 @@ def build_parser():
     b.add_argument("--volume", type=int, metavar="K", help="volume K (0-based) of a 4-D image")
     b.add_argument("--config", metavar="FILE.yaml",
                    help="the settings as YAML keys (input, function, n, array, volume, block, tol_inf, method, "
-                        "merged, count, fraction, values; see config/blocks.yaml); options given here override them")
+                        "merged, count, fraction, tol_rms, values; see config/blocks.yaml); options given here "
+                        "override them")
     b.add_argument("--block", type=int, help="grid intervals per block along each axis (e.g. 64)")
     b.add_argument("--tol-inf", type=float, help="E_inf tolerance every stage meets (so the merged mesh does)")
     b.add_argument("--method", choices=[n for n, m in METHODS.items()
                                         if m.PRESCRIBED_BOUNDARY or getattr(m, "BLOCK_STAGES", None)],
                    help="the 3-D stage's method (default greedy), or decimate: bottom-up decimation in blocks, "
-                        "which also stops at --count or --fraction")
+                        "which also stops at --count, --fraction or --tol-rms")
     b.add_argument("--count", type=int, help="decimate: stop at this many vertices in all")
     b.add_argument("--fraction", type=float, help="decimate: stop at this fraction of the points")
+    b.add_argument("--tol-rms", type=float, help="decimate: E_RMS tolerance (data values) the merged mesh meets: "
+                                                 "the stages share its squared-error budget")
     b.add_argument("--values", nargs="+", choices=["data", "fit"],
                    help="decimate: the vertex values written (data, and/or fit: least-squares values; "
                         "default data)")
@@ -327,12 +331,13 @@ def _blocks_hint(a, chosen, available):
             ["--volume", str(a.volume)] if a.volume is not None else [])
     else:
         source = ["--function", str(a.function), "--n", str(a.n)]
-    if chosen == "decimate" and a.tol_rms is None and (a.count is not None) + len(a.fractions or ()) <= 1:
+    if chosen == "decimate" and (a.count is not None) + len(a.fractions or ()) <= 1:
         # decimate's own stages in blocks: as jobs, or in this process where they fit
         from .blocks.decimate import block_for_memory as jobs_block
 
         stop = (["--count", str(a.count)] if a.count is not None
                 else ["--fraction", f"{float(a.fractions[0]):g}"] if a.fractions else [])
+        stop += ["--tol-rms", f"{float(a.tol_rms):g}"] if a.tol_rms is not None else []
         stop += ["--tol-inf", f"{float(a.tol_inf):g}"] if a.tol_inf is not None else []
         cmd = ["trivsel", "blocks", *source, "--method", "decimate", "--block", str(jobs_block(available)), *stop,
                *(["--values", *a.values] if a.values else []), "--out", a.out, "-c", "2"]
@@ -368,7 +373,7 @@ def _decimate_block_for_memory(a, source, available):
     from .methods.decimate import memory
     from .options import Options
 
-    if a.tol_rms is not None or (a.count is not None) + len(a.fractions or ()) > 1:
+    if (a.count is not None) + len(a.fractions or ()) > 1:
         return None
     vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
            else open_volume(function=a.function, n=a.n))
@@ -482,7 +487,7 @@ def _cmd_blocks(a, snakemake_args):
     if a.config:
         config = _read_yaml(a.config)
     for key in ("input", "function", "n", "array", "volume", "block", "tol_inf", "method", "count", "fraction",
-                "values"):
+                "tol_rms", "values"):
         if getattr(a, key) is not None:
             config[key] = getattr(a, key)
     if a.no_merged:
@@ -533,7 +538,7 @@ def _read_yaml(path):
     if not isinstance(d, dict):
         raise InputError(f"config {path} must be a mapping of settings, got {type(d).__name__}")
     known = {"input", "function", "n", "array", "volume", "block", "tol_inf", "method", "merged", "count", "fraction",
-             "values"}
+             "tol_rms", "values"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise InputError(f"config {path}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")

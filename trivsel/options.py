@@ -151,7 +151,8 @@ class Options:
         0, "decimate a grid in blocks of this many grid intervals per axis (0: in one piece), one "
         "block or region in memory at a time: one cost threshold across the blocks, then the seams freed region "
         "by region (docs/methods.md), for about 100 bytes per point besides, where one piece takes 1000. One "
-        "count, fraction or tol_inf; not tol_rms, criterion 'max' or candidates 'interior'",
+        "count or fraction, and/or tol_rms (a squared-error budget the stages share) and tol_inf; not criterion "
+        "'max' or candidates 'interior'",
         kind="int", minimum=0, tag="block", methods=("decimate",))
     boundary_flips: bool | None = _option(
         None, "also flip an edge between two coplanar hull faces to the other diagonal of their "

@@ -53,7 +53,7 @@ __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block",
 #: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
 #: Stops besides ``tol_inf``, for methods with stages of their own in blocks (``BLOCK_STAGES``)
-STOP_KEYS = ("count", "fraction", "values")
+STOP_KEYS = ("count", "fraction", "tol_rms", "values")
 
 
 @dataclass(frozen=True)

@@ -6,9 +6,10 @@ the same mesh; here each is a job of the workflow ``trivsel/blocks/decimate.smk`
 one stage hands the next is a file in the run's folder::
 
     costs/X.npz        pass 1, the blocks of x-slab X one after the other: each block's
-                       recorded collapses (point and target) and their costs (running
-                       maxima), and its points off the seams
-    tau.json           the cost threshold cut across every block's sequence
+                       recorded collapses (point and target), their costs (running
+                       maxima) and the squared error they add, and its points off the seams
+    tau.json           the cost threshold cut across every block's sequence, and the
+                       squared error the blocks add up to it
     meshes/X.npz       pass 2, each block of slab X down to the threshold (its recorded
                        collapses replayed): its tetrahedra, the points inside them and their rows
     passes/P/state.npz the whole mesh before pass P: tetrahedra, each point's tetrahedron,
@@ -17,7 +18,8 @@ one stage hands the next is a file in the run's folder::
     passes/P/in/R.npz  the regions of x-slab R of pass P, each as a mesh of its own
     passes/P/costs/R.npz, passes/P/quota.npz
                        each region's recorded costs, and the collapses each makes: one
-                       threshold across the regions (runs with a count only)
+                       threshold across the regions, and the squared error spent so far
+                       (runs with a count or tol_rms only)
     passes/P/out/R.npz each region of slab R decimated: the points it removed, its new
                        tetrahedra, the points inside them
     merged/            the last step: mesh.vtu (vertices sorted by the input's point id),
@@ -65,9 +67,9 @@ FIT_BYTES_PER_POINT = 150
 
 def make_config(config, shape):
     """The keys of a run's configuration that ``decimate`` adds (the stop and the values), checked:
-    ``count`` (8 to the points) or ``fraction`` (in (0, 1]), and/or ``tol_inf``; ``values``, a list
-    of ``data`` and ``fit``.  Also the plan (the blocks of :func:`plan_decimation`).  ``block`` was
-    checked by :func:`trivsel.blocks.make_config`."""
+    ``count`` (8 to the points) or ``fraction`` (in (0, 1]), and/or ``tol_rms`` (a number >= 0) and
+    ``tol_inf``; ``values``, a list of ``data`` and ``fit``.  Also the plan (the blocks of
+    :func:`plan_decimation`).  ``block`` was checked by :func:`trivsel.blocks.make_config`."""
     from ..exceptions import InputError, shown
 
     N = int(np.prod(shape))
@@ -81,8 +83,12 @@ def make_config(config, shape):
     if fraction is not None and (isinstance(fraction, bool) or not isinstance(fraction, (int, float))
                                  or not 0 < fraction <= 1):
         raise InputError(f"fraction must be a number in (0, 1]; got {shown(fraction)}")
-    if count is None and fraction is None and config.get("tol_inf") is None:
-        raise InputError("give a stop: --count, --fraction or --tol-inf")
+    tol_rms = config.get("tol_rms")
+    if tol_rms is not None and (isinstance(tol_rms, bool) or not isinstance(tol_rms, (int, float))
+                                or not np.isfinite(tol_rms) or tol_rms < 0):
+        raise InputError(f"tol_rms must be a finite number >= 0, got {shown(tol_rms)}")
+    if count is None and fraction is None and tol_rms is None and config.get("tol_inf") is None:
+        raise InputError("give a stop: --count, --fraction, --tol-rms or --tol-inf")
     values = config.get("values") or ["data"]
     if isinstance(values, str):
         values = [values]
@@ -90,7 +96,7 @@ def make_config(config, shape):
             or len(set(values)) != len(values):
         raise InputError(f"values must be a list of {' and '.join(VALUES)} (each once); got {shown(values)}")
     return {"count": None if count is None else int(count), "fraction": None if fraction is None else float(fraction),
-            "values": list(values), "plan": plan_decimation(shape, int(config["block"])).to_dict()}
+            "tol_rms": None if tol_rms is None else float(tol_rms), "values": list(values), "plan": plan_decimation(shape, int(config["block"])).to_dict()}
 
 
 def check_job_memory(full):
@@ -136,15 +142,20 @@ def plan_decimation(shape, block) -> Plan:
 
 class Stages:
     """The jobs of a run: the x-slabs of blocks, and each pass's kind, offset and x-slabs of
-    regions, from the configuration alone (the workflow's rules are made from it)."""
+    regions, from the configuration alone (the workflow's rules are made from it).  ``costed``:
+    the run has a count or ``tol_rms``, so its stages record their costs and cut them."""
 
     def __init__(self, cfg, plan):
         self.cfg, self.plan = cfg, plan
         self.block = int(cfg["block"])
-        self.counted = cfg.get("count") is not None or cfg.get("fraction") is not None
+        self.costed = any(cfg.get(k) is not None for k in ("count", "fraction", "tol_rms"))
         self.slabs = list(range(plan.counts[0]))
-        self.passes = [(kind, off) for kind, off in B.passes(self.block) if self.counted or kind == "seams"]
+        self.passes = [(kind, off) for kind, off in B.passes(self.block) if self.costed or kind == "seams"]
         self.size = B.REGION * self.block
+
+    def budget(self):
+        """The squared error the run may spend (:func:`trivsel.decimation.blocked.sse_budget`)."""
+        return B.sse_budget(self.cfg.get("tol_rms"), self.plan.n_points())
 
     def target(self):
         if self.cfg.get("count") is not None:
@@ -204,37 +215,54 @@ def _costs(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     res = {}
     for i, lo, hi in st.blocks_of(slab):
-        r, n_inner, (removed, into) = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(),
-                                                    fraction=st.fraction(), tol_inf=st.cfg.get("tol_inf"))
-        res.update({f"runmax_{i}": r, f"inner_{i}": np.int64(n_inner), f"removed_{i}": removed, f"into_{i}": into})
+        r, n_inner, (removed, into), sse = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(),
+                                                         fraction=st.fraction(), tol_inf=st.cfg.get("tol_inf"),
+                                                         tol_rms=st.cfg.get("tol_rms"))
+        res.update({f"runmax_{i}": r, f"inner_{i}": np.int64(n_inner), f"removed_{i}": removed, f"into_{i}": into,
+                    f"sse_{i}": sse})
     _atomic_savez(out / "costs" / f"{slab}.npz", **res)
 
 
 def _cut(out, st):
-    runmax, inner = [], []
+    runmax, inner, sse = [], [], []
     N = st.plan.n_points()
     target = st.target()
-    if target is not None:
+    if st.costed:
         for slab in st.slabs:
             with np.load(out / "costs" / f"{slab}.npz", allow_pickle=False) as z:  # the costs only
                 for i, _, _ in st.blocks_of(slab):
                     runmax.append(z[f"runmax_{i}"])
                     inner.append(int(z[f"inner_{i}"]))
-    tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT)
+                    sse.append(z[f"sse_{i}"])
+    tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT, sse,
+                      st.budget())
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
-    _atomic_write_text(out / "tau.json", json.dumps({"tau": tau if np.isfinite(tau) else "inf", "target": target,
-                                                     "counts": counts}))
+    _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
+                                                     "sse": B.sse_at(sse, counts) if counts else 0.0}))
+
+
+def _number(x):
+    """A float for JSON, infinities as text."""
+    return float(x) if np.isfinite(x) else ("inf" if x > 0 else "-inf")
 
 
 def _tau(out):
     d = json.loads((Path(out) / "tau.json").read_text())
-    return INF if d["tau"] == "inf" else float(d["tau"]), d
+    return float(d["tau"]), d
+
+
+def _spent(out, st, p):
+    """The squared error the stages before pass ``p`` may have added (the blocks', then each
+    pass's quota cut)."""
+    if p == 0:
+        return float(_tau(out)[1]["sse"])
+    return float(_load(out / "passes" / str(p - 1) / "quota.npz")["spent"])
 
 
 def _mesh(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     tau, d = _tau(out)
-    recorded = _load(out / "costs" / f"{slab}.npz") if st.counted else None  # pass 1's collapses, replayed
+    recorded = _load(out / "costs" / f"{slab}.npz") if st.costed else None  # pass 1's collapses, replayed
     res = {}
     for i, lo, hi in st.blocks_of(slab):
         rec = None
@@ -289,7 +317,9 @@ def _step(out, st, p):
     kind, offset = st.passes[p]
     c = cand if kind == "seams" else isv.copy()
     surplus = None if target is None else int(isv.sum()) - target
-    run = bool(c.any()) and (surplus is None or surplus > 0)
+    spent = _spent(out, st, p) if st.costed else 0.0
+    left = st.budget() - spent
+    run = B.pass_runs(c, surplus, left)
     folder = out / "passes" / str(p)
     _atomic_savez(folder / "state.npz", T=T, owner=owner, isv=isv, cand=cand)
     dims = st.region_dims(p)
@@ -300,10 +330,11 @@ def _step(out, st, p):
         plan["left"] = cand
     tau, _ = _tau(out)
     tau_p = tau if kind == "seams" else INF
-    caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and surplus is not None else None
+    caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and st.costed else None
     _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
                   region=plan["region"], left=plan["left"], ran=np.bool_(run),
-                  surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p))
+                  surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p),
+                  spent=np.float64(spent), budget=np.float64(left))
     per = int(dims[1] * dims[2])
     for slab in st.region_slabs(p):
         res = {}
@@ -330,9 +361,11 @@ def _region_costs(out, st, p, slab):
     res = {}
     for r in regions:
         i = inp(r)
-        runmax, result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
-                                           tol_inf=st.cfg.get("tol_inf"), quota=int(z[f"cap_{r}"]), costs=True)
+        runmax, sse, result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
+                                                tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
+                                                quota=int(z[f"cap_{r}"]), costs=True, budget=float(plan["budget"]))
         res[f"runmax_{r}"] = runmax
+        res[f"sse_{r}"] = sse
         res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
     _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
 
@@ -340,14 +373,18 @@ def _region_costs(out, st, p, slab):
 def _quota(out, st, p):
     folder = out / "passes" / str(p)
     plan = _load(folder / "plan.npz")
-    runmax = {}
+    runmax, sse = {}, {}
     for slab in st.region_slabs(p):
         z = _load(folder / "costs" / f"{slab}.npz")
         runmax.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("runmax_")})
+        sse.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("sse_")})
     regions = [int(r) for r in plan["region"]]
-    q = (B.cut_quota([runmax[r] for r in regions], int(plan["surplus"])) if plan["ran"] and plan["surplus"] >= 0
-         else np.zeros(0, np.int64))
-    _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64))
+    q, added = np.zeros(0, np.int64), 0.0
+    if plan["ran"]:
+        q, added = B.cut_quota([runmax[r] for r in regions], None if plan["surplus"] < 0 else int(plan["surplus"]),
+                               [sse[r] for r in regions], float(plan["budget"]))
+    _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
+                  spent=np.float64(float(plan["spent"]) + added))
 
 
 def _region_apply(out, st, p, slab):
@@ -355,7 +392,7 @@ def _region_apply(out, st, p, slab):
     folder = out / "passes" / str(p)
     plan = _load(folder / "plan.npz")
     quota, recorded = None, {}
-    if st.counted:
+    if st.costed:
         q = _load(folder / "quota.npz")
         quota = dict(zip(q["region"].tolist(), q["quota"].tolist()))
         recorded = _load(folder / "costs" / f"{slab}.npz")
@@ -435,11 +472,11 @@ def _finish(out, st):
     tau, _ = _tau(out)
     target = st.target()
     m = len(vertices)
-    why = B.stop_reason(m, target, cfg.get("tol_inf"), st.block)
+    why = B.stop_reason(m, target, cfg.get("tol_inf"), st.block, cfg.get("tol_rms"))
     summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(len(T)),
                "E_rms": errors["E_rms"], "E_inf": errors["E_inf"], "E_rms_interior": errors["E_rms_interior"],
                "E_inf_interior": errors["E_inf_interior"], "method": "decimate", "target": target,
-               "tol_inf": cfg.get("tol_inf"), "stopped": why, "blocks": len(plan.blocks()),
+               "tol_rms": cfg.get("tol_rms"), "tol_inf": cfg.get("tol_inf"), "stopped": why, "blocks": len(plan.blocks()),
                "cost_threshold": float(tau) if np.isfinite(tau) else None, "passes": len(st.passes)}
     if fit is not None:
         summary["fit"] = {k: float(v) for k, v in fit["errors"].items()}

@@ -4,6 +4,9 @@
 #   per pass P: step_P (merge the pass before, plan this one) -> [rcosts (x-slabs of regions)
 #   -> quota] -> apply (x-slabs of regions) -> finish
 #
+# The bracketed stages run with a count or tol_rms (ST.costed): their cut spends the count and
+# the squared-error budget that tau.json and each quota.npz carry on.
+#
 # The stages are those of `trivsel reduce --block B` (trivsel.decimation.blocked), so both give the
 # same mesh.  Written and run by `trivsel blocks` in the run's folder, which holds blocks.json.
 # What one stage hands the next is temporary: Snakemake removes a file once every job that
@@ -36,7 +39,8 @@ def region_files(p, folder):
 def step_inputs(p):
     if p == 0:
         return [f"meshes/{s}.npz" for s in ST.slabs]
-    return [f"passes/{p - 1}/state.npz", f"passes/{p - 1}/plan.npz"] + region_files(p - 1, "out")
+    spent = [f"passes/{p - 1}/quota.npz"] if ST.costed and p < len(ST.passes) else []  # the error spent so far
+    return [f"passes/{p - 1}/state.npz", f"passes/{p - 1}/plan.npz"] + spent + region_files(p - 1, "out")
 
 
 wildcard_constraints:
@@ -88,7 +92,7 @@ rule costs:
 
 rule cut:
     input:
-        [f"costs/{s}.npz" for s in ST.slabs] if ST.counted else "kernels.done",
+        [f"costs/{s}.npz" for s in ST.slabs] if ST.costed else "kernels.done",
     output:
         "tau.json",
     log:
@@ -106,7 +110,7 @@ rule cut:
 rule mesh:
     input:
         "tau.json",
-        "costs/{slab}.npz" if ST.counted else [],
+        "costs/{slab}.npz" if ST.costed else [],
     output:
         temp("meshes/{slab}.npz"),
     log:
@@ -185,7 +189,7 @@ rule apply:
     input:
         "passes/{p}/plan.npz",
         "passes/{p}/in/{slab}.npz",
-        lambda wc: [f"passes/{wc.p}/quota.npz", f"passes/{wc.p}/costs/{wc.slab}.npz"] if ST.counted else [],
+        lambda wc: [f"passes/{wc.p}/quota.npz", f"passes/{wc.p}/costs/{wc.slab}.npz"] if ST.costed else [],
     output:
         temp("passes/{p}/out/{slab}.npz"),
     log:

@@ -26,6 +26,15 @@ into blocks that share their faces (the *seams*)::
              grid by one more threshold: each region records its cheapest collapses, and
              the cheapest of all, a prefix of each region's sequence, are made
 
+With ``tol_rms`` the squared error is a budget, ``tol_rms^2 N``, that the stages share without
+ever exceeding it.  Every recorded sequence carries its running squared error (the exact
+change of each collapse, summed; section 5's eq. 19), and the squared errors of disjoint
+pieces add up: the cut takes tau where the blocks' errors, projected over the seams, come to
+``SSE_SHARE`` of the budget; each pass after it records its regions' sequences within what is
+left and makes the cheapest collapses across its regions while their errors fit in it.  So
+the merged mesh's E_RMS is within ``tol_rms`` by construction, and the quota passes spend the
+rest of the budget on the cheapest collapses of all (as one piece's queue would).
+
       blocks (pass 1)      regions (cuts through the blocks' middles)
       +-----+-----+            :     :
       |     |     |        ....:.....:....     o free: its whole star in the region
@@ -51,8 +60,9 @@ from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
+           "sse_budget", "running_sse", "sse_at",
            "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
-           "decimate_in_blocks", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
+           "decimate_in_blocks", "pass_runs", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -64,6 +74,14 @@ QUOTA_SHIFTS = (0.0, 1.0, 0.5, 1.5)
 #: The cut aims at this many times the count asked for, so that the region passes end above it and the
 #: quota step takes the rest (the regions free every vertex, and remove more than the blocks' sequences show)
 OVERSHOOT = 1.2
+#: With ``tol_rms``, the cut aims the blocks' squared error (projected over the seams) at this share of the
+#: budget, so that the region passes end within it and the quota passes spend the rest.  It is the share of
+#: the error that OVERSHOOT leaves by count, the squared error of a trilinear fit growing about as m^(-4/3)
+#: with m vertices.  A larger share runs the seam passes out of budget before their last grid has freed the
+#: seams, a smaller one leaves the quota passes more than they spend well (measured: docs/notes)
+SSE_SHARE = OVERSHOOT ** (-4.0 / 3.0)
+#: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
+SSE_MARGIN = 1e-9
 
 def block_cuts(n, block):
     """The grid indices where blocks of ``block`` intervals meet along an axis of ``n``
@@ -124,29 +142,52 @@ def _on_seam(g, seam_axes):
     return on
 
 
-def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max):
+def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms=None):
     """The block decimated lazily down to its seam points and twice its share of the target
-    (``fraction`` of its points off the seams), then with exact costs (as
+    (``fraction`` of its points off the seams) and, with ``tol_rms``, while its E_RMS is below
+    ``tol_rms / EXACT_WITHIN``, then with exact costs (as
     :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until the first
     collapse that costs more than ``key_max``: the same sequence every time."""
     S, gid, seam = _block_state(values, lo, shape, seam_axes)
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
     share = (~seam).sum() * fraction  # its locked seam points stay
-    if dec.run(int(seam.sum() + EXACT_WITHIN * share), key_max=key_max) == 0:
+    near_sse = INF if tol_rms is None else float(tol_rms) ** 2 * len(gid) / EXACT_WITHIN ** 2
+    if dec.run(int(seam.sum() + EXACT_WITHIN * share), sse_max=near_sse, key_max=key_max) != 1:
         dec.lazy = False
         dec.run(0, key_max=key_max)
     return dec, gid, seam
 
 
-def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None):
+def sse_budget(tol_rms, n_points):
+    """The squared error that a run to ``tol_rms`` over ``n_points`` may spend in all
+    (``tol_rms^2 N`` less :data:`SSE_MARGIN`); inf without ``tol_rms``."""
+    return INF if tol_rms is None else float(tol_rms) ** 2 * n_points * (1.0 - SSE_MARGIN)
+
+
+def running_sse(deltas):
+    """The squared error a sequence of collapses has added after each of them (``deltas``:
+    their exact changes, in the order made), as a bound that never falls: the running maxima
+    of the cumulative sums, from 0."""
+    d = np.asarray(deltas, np.float64)
+    return np.maximum.accumulate(np.maximum(np.cumsum(d), 0.0)) if len(d) else d.copy()
+
+
+def sse_at(sse, counts):
+    """The squared error the sequences (:func:`running_sse`) add when each is cut to its count."""
+    return float(sum(s[c - 1] for s, c in zip(sse, counts) if c > 0))
+
+
+def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None, tol_rms=None):
     """Pass 1 on one block: the running maxima of its collapse costs in the order made, its
-    number of points off the seams, and the collapses themselves (the points removed and the
-    vertices they moved onto, block indices), for pass 2 to replay."""
-    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF)
+    number of points off the seams, the collapses themselves (the points removed and the
+    vertices they moved onto, block indices) for pass 2 to replay, and the squared error they
+    add (:func:`running_sse`; a block starts at error 0, every point a vertex)."""
+    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF, tol_rms)
     removed = dec.removed()
     keys = dec.S.hkey[removed]
     runmax = np.maximum.accumulate(keys) if len(keys) else keys.copy()
-    return runmax, int((~seam).sum()), (removed.astype(np.int32), dec.into().astype(np.int32))
+    return (runmax, int((~seam).sum()), (removed.astype(np.int32), dec.into().astype(np.int32)),
+            running_sse(dec.S.hsse[removed]))
 
 
 def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, recorded=None):
@@ -165,31 +206,44 @@ def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, rec
     return gid[dec.tetrahedra()], gid[inside], row[dec.S.ptet[inside]], len(dec.removed())
 
 
-def threshold(runmax, inner, seam_points, target):
+def threshold(runmax, inner, seam_points, target, sse=None, budget=INF):
     """The cost threshold tau at which the blocks' points left (their sequences' running
     maxima cut at tau), plus the seams' points at the blocks' density, come nearest to
-    ``target``; inf without a target."""
-    if target is None:
+    ``target``; with a ``budget`` (:func:`sse_budget`), at most the tau at which the squared
+    error the blocks add (``sse``, :func:`running_sse` of each), projected over the seams at
+    the blocks' density, is ``SSE_SHARE`` of it.  Inf with neither."""
+    if target is None and budget == INF:
         return INF
     total = sum(inner)
     cand = np.unique(np.concatenate([r for r in runmax if len(r)] or [np.zeros(0)]))
     if not len(cand):
         return INF
 
+    def counts(t):
+        return [int(np.searchsorted(r, t, side="right")) for r in runmax]
+
     def left(t):
-        kept = total - sum(int(np.searchsorted(r, t, side="right")) for r in runmax)
+        kept = total - sum(counts(t))
         return kept + seam_points * kept / max(total, 1)
 
-    lo, hi = 0, len(cand) - 1  # left() falls as tau grows: the smallest tau with left <= target
-    if left(cand[hi]) > target:
-        return float(cand[hi])
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if left(cand[mid]) <= target:
-            hi = mid
-        else:
-            lo = mid + 1
-    return float(cand[lo])
+    def first(ok):  # the smallest index whose candidate is ok (ok holds from it on); len(cand) if none
+        lo, hi = 0, len(cand)
+        while lo < hi:
+            mid = (lo + hi) // 2
+            if ok(cand[mid]):
+                hi = mid
+            else:
+                lo = mid + 1
+        return lo
+
+    tau = INF
+    if target is not None:  # left() falls as tau grows: the smallest tau with left <= target, or every collapse
+        tau = float(cand[min(first(lambda t: left(t) <= target), len(cand) - 1)])
+    if budget < INF:  # the projected error grows with tau: the largest tau within the share
+        scale = (total + seam_points) / max(total, 1)
+        k = first(lambda t: sse_at(sse, counts(t)) * scale > SSE_SHARE * budget)
+        tau = min(tau, float(cand[k - 1]) if k > 0 else float(np.nextafter(cand[0], -INF)))
+    return tau
 
 
 def index_type(n):
@@ -278,49 +332,59 @@ def region_input(plan, T, owner, k):
     return {"local": local, "tets": tl, "located": located, "locked": ~plan["free"][local]}
 
 
-def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False):
+def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False, budget=INF):
     """Decimate one region (:func:`region_input`; ``values`` at its ``local`` points) on the
     grid's lattice (exact integer predicates), its free vertices the only ones that move, down
-    to ``tau`` and by at most ``quota`` vertices.  Returns the points it removed, its new
-    tetrahedra, and the points inside them with their rows (global indices); with ``costs``,
-    the running maxima of its collapse costs in the order made first, and that result: the one a
-    run whose quota is all of these collapses gives (:func:`cut_quota` then reuses it)."""
+    to ``tau``, by at most ``quota`` vertices and, with a ``budget``, while the squared error of
+    its points grows by at most that.  Returns the points it removed, its new tetrahedra, and
+    the points inside them with their rows (global indices); with ``costs``, the running maxima
+    of its collapse costs in the order made and the squared error they add
+    (:func:`running_sse`) first, and that result: the one a run whose quota is all of these
+    collapses gives (:func:`cut_quota` then reuses it)."""
     local = inp["local"]
     St = new_mesh_state(np.stack(np.unravel_index(local, shape), axis=1), inp["tets"],
                         np.asarray(values, np.float64), located=inp["located"], key="sse", lazy=False)
     St.lock[inp["locked"]] |= LOCK_ALL
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
-    dec.run(0 if quota is None else dec.n_vertices - int(quota), key_max=tau)
+    dec.run(0 if quota is None else dec.n_vertices - int(quota), sse_max=dec.sse + budget, key_max=tau)
     if not costs and quota is not None and len(dec.removed()) != quota:
         raise RuntimeError("a region did not repeat its recorded collapses")
     alive_row = np.cumsum(dec.S.alive) - 1
     nonv = np.flatnonzero(~dec.S.isv)
-    result = local[dec.removed()], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
+    removed = dec.removed()
+    result = local[removed], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
     if costs:
-        keys = dec.S.hkey[dec.removed()]
-        return (np.maximum.accumulate(keys) if len(keys) else keys.copy()), result
+        keys = dec.S.hkey[removed]
+        return (np.maximum.accumulate(keys) if len(keys) else keys.copy()), running_sse(dec.S.hsse[removed]), result
     return result
 
 
 def cost_caps(plan, surplus, share_cap):
     """The most collapses each region records for the quota cut: all its free vertices, or
-    with ``share_cap`` (the quota passes, no threshold) at most twice its share of
-    ``surplus`` by free vertices."""
+    with ``share_cap`` (the quota passes, no threshold) and a ``surplus`` (None: no count) at
+    most twice its share of ``surplus`` by free vertices."""
     nfree = plan["nfree"]
-    if not share_cap:
+    if not share_cap or surplus is None:
         return nfree
     return np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16)
 
 
-def cut_quota(runmax, surplus):
-    """How many vertices each region removes, ``surplus`` in all at most: the ``surplus``
-    cheapest of the regions' recorded costs (their running maxima), ties by region: one
-    threshold across the regions, as across the blocks, so each region's count is a prefix
-    of its own sequence."""
+def cut_quota(runmax, surplus, sse=None, budget=INF):
+    """How many vertices each region removes: the cheapest of the regions' recorded costs
+    (their running maxima), ties by region, ``surplus`` at most (None: no count) and, with a
+    ``budget``, as many as the squared error they add (``sse``, :func:`running_sse` of each
+    region) fits in: one threshold across the regions, as across the blocks, so each region's
+    count is a prefix of its own sequence.  Returns the counts and the squared error they add."""
     value = np.concatenate(list(runmax) + [np.zeros(0)])
     region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
     take = np.lexsort((region, value))[:surplus]
-    return np.bincount(region[take], minlength=len(runmax))
+    spent = 0.0
+    if sse is not None:
+        add = np.concatenate([np.diff(s, prepend=0.0) for s in sse] + [np.zeros(0)])[take]
+        if budget < INF:
+            take = take[:int(np.searchsorted(np.cumsum(add) > budget, True))]  # the prefix within the budget
+        spent = float(add[:len(take)].sum())
+    return np.bincount(region[take], minlength=len(runmax)), spent
 
 
 def merge_pass(T, owner, isv, plan, results):
@@ -357,15 +421,18 @@ def merge_pass(T, owner, isv, plan, results):
     return T2, owner, isv, removed
 
 
-def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None, threads=1, progress=None):
+def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None, tol_inf=None, threads=1,
+                       progress=None):
     """Decimate the grid ``volume`` (a 3-D array) in blocks of ``block`` intervals per axis.
 
     Stops at ``count`` vertices (or ``fraction`` of the points; above it only where too few
-    vertices are free in any region), or where no collapse keeps every residual within
-    ``tol_inf``.  Returns a dict: ``vertices`` (global point indices,
-    C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet`` (for
-    every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the cost
-    threshold) and ``stats`` (counts per pass).  ``progress(count)`` is called with the vertex
+    vertices are free in any region), where the squared error left would take E_RMS above
+    ``tol_rms`` (a budget the stages share: the module's docstring), or where no collapse
+    keeps every residual within ``tol_inf``.  Returns a dict: ``vertices`` (global point
+    indices, C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet``
+    (for every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the
+    cost threshold) and ``stats`` (counts per pass; ``sse_bound``, the squared error the
+    collapses may have added, at most the budget).  ``progress(count)`` is called with the vertex
     count after every block and every pass.  ``threads`` processes decimate blocks, and the
     regions of a pass, side by side (forked: the same results as one).  The stages are the
     functions the jobs of ``trivsel blocks --method decimate`` call (:mod:`trivsel.blocks.decimate`),
@@ -377,27 +444,31 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     cuts, bounds = block_list(shape, block)
     seam_axes = [c[1:-1] for c in cuts]
     say = progress or (lambda count: None)
-    if count is None and fraction is None and tol_inf is None:
-        raise ValueError("decimate_in_blocks needs a stop: count, fraction or tol_inf")
+    if count is None and fraction is None and tol_rms is None and tol_inf is None:
+        raise ValueError("decimate_in_blocks needs a stop: count, fraction, tol_rms or tol_inf")
     target = None
     if count is not None or fraction is not None:
         target = int(count) if count is not None else count_for_fraction(fraction, N)
+    budget = sse_budget(tol_rms, N)
+    costed = target is not None or budget < INF  # the stages record costs and cut them
 
     _SHARED.clear()
-    _SHARED.update(vol=vol, bounds=bounds, seam_axes=seam_axes, tol_inf=tol_inf,
+    _SHARED.update(vol=vol, bounds=bounds, seam_axes=seam_axes, tol_inf=tol_inf, tol_rms=tol_rms,
                    fraction=0.0 if target is None else target / N)
 
-    # pass 1: every block's costs, cheapest first, as running maxima
-    runmax, inner, recorded = [], [], []
-    if target is not None:
-        for r, n_inner, seq in _map(_block_costs, range(len(bounds)), threads):
+    # pass 1: every block's costs, cheapest first, as running maxima, and the squared error they add
+    runmax, inner, recorded, sse = [], [], [], []
+    if costed:
+        for r, n_inner, seq, e in _map(_block_costs, range(len(bounds)), threads):
             runmax.append(r)
             inner.append(n_inner)
             recorded.append(seq)
-    tau = threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT)
+            sse.append(e)
+    tau = threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT, sse, budget)
 
     # pass 2: every block to tau (the prefix of its sequence, replayed)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
+    spent = sse_at(sse, counts) if counts else 0.0
     _SHARED["tau"] = tau
     _SHARED["recorded"] = [(v[:c], w[:c]) for (v, w), c in zip(recorded, counts)] if counts else None
     del recorded
@@ -414,25 +485,28 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_inf=None
     stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
 
     # the seams, region by region (every vertex a candidate, down to tau); then the quota
-    # passes: the vertices over the target, the cheapest across the regions
+    # passes: the vertices over the target, or the budget left, the cheapest across the regions
     cand = isv.copy()
     for kind, offset in passes(int(block)):
         if kind == "quota" and "after_seams" not in stats:
             stats["after_seams"] = int(isv.sum())
-        if kind == "quota" and target is None:
+        if kind == "quota" and not costed:
             break
         c = cand if kind == "seams" else isv.copy()
         surplus = None if target is None else int(isv.sum()) - target  # never below the count
-        if not c.any() or (surplus is not None and surplus <= 0):
+        if not pass_runs(c, surplus, budget - spent):
             continue
         T, owner, isv, left, st = _region_pass(shape, T, owner, isv, c, offset, REGION * int(block),
-                                               tau if kind == "seams" else INF, surplus, tol_inf, threads)
+                                               tau if kind == "seams" else INF, surplus, tol_inf, threads,
+                                               costed=costed, budget=budget - spent)
+        spent += st["sse"]
         if kind == "seams":
             cand = left
         stats["seam_passes"].append(st)
         say(int(isv.sum()))
     stats.setdefault("after_seams", int(isv.sum()))
     stats["vertices"] = int(isv.sum())
+    stats["sse_bound"] = spent
     owner[isv] = -1
     _SHARED.clear()
     return {"vertices": np.flatnonzero(isv), "tets": T, "ptet": owner, "tau": float(tau), "stats": stats}
@@ -465,7 +539,7 @@ def _block_values(i):
 def _block_costs(i):
     values, lo = _block_values(i)
     return block_costs(values, lo, _SHARED["vol"].shape, _SHARED["seam_axes"], fraction=_SHARED["fraction"],
-                       tol_inf=_SHARED["tol_inf"])
+                       tol_inf=_SHARED["tol_inf"], tol_rms=_SHARED["tol_rms"])
 
 
 def _block_mesh(i):
@@ -475,28 +549,39 @@ def _block_mesh(i):
                       tau=_SHARED["tau"], tol_inf=_SHARED["tol_inf"], recorded=None if rec is None else rec[i])
 
 
-def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1):
+def pass_runs(cand, surplus, left):
+    """Whether a pass after the blocks runs: some vertex is a candidate, a count (``surplus``
+    vertices over it; None: no count) is not yet met, and squared error is ``left`` to spend."""
+    return bool(cand.any()) and (surplus is None or surplus > 0) and left >= 0
+
+
+def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1, *, costed=None,
+                 budget=INF):
     """One pass over the regions of edge ``size`` cut at ``offset + k size``
-    (:func:`pass_plan`), each decimated down to ``tau`` and, with ``surplus``, the regions
-    together by at most that many vertices, the cheapest (:func:`cut_quota`): returns the
-    new mesh, owners, vertex flags, the candidates left (not free in any region of this
-    grid) and the pass's counts."""
+    (:func:`pass_plan`), each decimated down to ``tau`` and, when ``costed`` (a ``surplus``
+    vertices over the count, or a ``budget`` of squared error), the regions together by at
+    most that many vertices and that error, the cheapest (:func:`cut_quota`): returns the new
+    mesh, owners, vertex flags, the candidates left (not free in any region of this grid) and
+    the pass's counts (``sse``: the squared error it may have added)."""
+    costed = surplus is not None if costed is None else costed
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
-    _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None)
+    _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
+                                  budget=budget)
     whole = {}  # the regions whose quota is every collapse they recorded: that run's result
-    if surplus is not None:
+    spent = 0.0
+    if costed:
         sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
         recorded = list(_map(_region_costs, runs, threads))
-        sh["quota"] = cut_quota([r for r, _ in recorded], surplus)
-        whole = {k: res for k, (r, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
+        sh["quota"], spent = cut_quota([r for r, _, _ in recorded], surplus, [e for _, e, _ in recorded], budget)
+        whole = {k: res for k, (r, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
         del recorded
     todo = [k for k in runs if k not in whole]
     done = dict(zip(todo, _map(_region_apply, todo, threads)))
     T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, (whole[k] if k in whole else done[k] for k in runs))
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
-                                            "removed": removed, "not_free": int(plan["left"].sum())}
+                                            "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent}
 
 
 def _region(k):
@@ -508,7 +593,7 @@ def _region(k):
 def _region_costs(k):
     sh, inp, values = _region(k)
     return region_decimate(inp, _SHARED["vol"].shape, values, tau=sh["tau"], tol_inf=sh["tol_inf"],
-                           quota=sh["caps"][k], costs=True)
+                           quota=sh["caps"][k], costs=True, budget=sh["budget"])
 
 
 def _region_apply(k):
@@ -517,10 +602,12 @@ def _region_apply(k):
                            quota=None if sh["quota"] is None else sh["quota"][k])
 
 
-def stop_reason(vertices, target, tol_inf, block):
+def stop_reason(vertices, target, tol_inf, block, tol_rms=None):
     """Why a run in blocks stopped with ``vertices`` vertices (asked for ``target``, or None)."""
     if target is not None and vertices <= target:
         return "the count was reached"
+    if tol_rms is not None:
+        return "the next collapses would raise E_RMS above tol_rms"
     if tol_inf is not None:
         return "no collapse was left that keeps every residual within tol_inf"
     # the tetrahedra grew as large as the regions: few of their vertices were free in any
@@ -561,10 +648,11 @@ def _det(u, v, w):
     return np.einsum("ij,ij->i", np.cross(u, v), w)
 
 
-def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), interior=None, threads=1,
-                     progress=None, t_start=None):
+def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=("data",), interior=None,
+                     threads=1, progress=None, t_start=None):
     """The whole run of ``method="decimate"`` with ``block`` for :func:`trivsel.reduce`: grid
-    data decimated by :func:`decimate_in_blocks` to ``target`` points (or, None, to ``tol_inf``).
+    data decimated by :func:`decimate_in_blocks` to ``target`` points (None: no count), within
+    ``tol_rms`` and ``tol_inf``.
     Returns ``(snapshots, selected, stats, seconds)`` as
     :func:`trivsel.decimation.reduce_by_collapse` does, with one snapshot."""
     import time
@@ -585,7 +673,8 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
             progress(count, target or 0, float("nan"), float("nan"), time.perf_counter() - t_start)
 
     say(N)
-    out = decimate_in_blocks(vol, block, count=target, tol_inf=tol_inf, threads=threads, progress=say)
+    out = decimate_in_blocks(vol, block, count=target, tol_rms=tol_rms, tol_inf=tol_inf, threads=threads,
+                             progress=say)
     te = time.perf_counter()
     verts, w = point_weights(data.shape, out["tets"], out["ptet"])
     f = vol.reshape(-1)
@@ -599,7 +688,7 @@ def reduce_in_blocks(data, target, *, block, tol_inf=None, values=("data",), int
     if progress is not None:
         progress(m, target or m, shot.errors["E_rms"], shot.errors["E_inf"], time.perf_counter() - t_start)
     st = out["stats"]
-    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": stop_reason(m, target, tol_inf, block),
+    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": stop_reason(m, target, tol_inf, block, tol_rms),
              "blocks": st["blocks"], "cost_threshold": st["tau"], "after_blocks": st["after_blocks"],
              "after_regions": st["after_seams"]}
     return [shot], out["vertices"], stats, time.perf_counter() - te

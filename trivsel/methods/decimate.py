@@ -139,14 +139,12 @@ def run(problem):
 
 
 def check_blocks(data, options, stop):
-    """What ``block`` takes: a grid and one stop (a count or fraction, or tol_inf), ordered by
-    the squared error over every point (:mod:`trivsel.decimation.blocked`)."""
+    """What ``block`` takes: a grid and its stops (one count or fraction, tol_rms, tol_inf),
+    ordered by the squared error over every point (:mod:`trivsel.decimation.blocked`)."""
     if not options.block:
         return
     if not data.is_grid:
         raise InputError("option block applies to grids; scattered points and meshes are decimated in one piece")
-    if stop["tol_rms"] is not None:
-        raise InputError("option block stops at a count, a fraction or tol_inf, not at --tol-rms")
     if options.criterion == "max" or options.candidates == "interior":
         what = "criterion 'max'" if options.criterion == "max" else "candidates 'interior'"
         raise InputError(f"option block orders collapses by criterion 'sse' over all candidates, not {what}")
@@ -162,7 +160,7 @@ def _run_in_blocks(problem, interior, targets):
     N = data.n_points
     target = targets[0] if (stop["fractions"] or stop["count"] is not None) else None
     snaps, selected, stats, t_errors = reduce_in_blocks(
-        data, target, block=opts.block, tol_inf=stop["tol_inf"], values=opts.values, interior=interior,
+        data, target, block=opts.block, tol_rms=stop["tol_rms"], tol_inf=stop["tol_inf"], values=opts.values, interior=interior,
         threads=problem.threads, progress=problem.progress, t_start=problem.t_start)
     requested_fractions(snaps, stop["fractions"], N)
     notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
