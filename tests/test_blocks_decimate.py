@@ -151,6 +151,28 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     assert "step_6" in capfd.readouterr().out and not (tmp_path / "dry").exists()
 
 
+def test_files_of_a_run_begun_before_errors_were_recorded_read_as_no_error_spent(tmp_path):
+    """A counted run begun by a version that recorded no squared errors, resumed by this one:
+    its costs, ``tau.json`` and ``quota.npz`` have no errors, and read as none spent (that run
+    had no budget), so the cut and the steps go on."""
+    from trivsel.blocks import decimate as D
+
+    plan = D.plan_decimation((17, 17, 17), 8)
+    st = D.Stages({"block": 8, "count": 100, "plan": plan.to_dict()}, plan)
+    (tmp_path / "costs").mkdir()
+    for slab in st.slabs:
+        np.savez(tmp_path / "costs" / f"{slab}.npz",
+                 **{k: v for i, _, _ in st.blocks_of(slab)
+                    for k, v in ((f"runmax_{i}", np.arange(5.0)), (f"inner_{i}", np.int64(200)))})
+    D._cut(tmp_path, st)
+    tau = json.loads((tmp_path / "tau.json").read_text())
+    assert tau["sse"] == 0.0 and D._spent(tmp_path, st, 0) == 0.0
+    (tmp_path / "tau.json").write_text(json.dumps({k: v for k, v in tau.items() if k != "sse"}))
+    (tmp_path / "passes" / "0").mkdir(parents=True)
+    np.savez(tmp_path / "passes" / "0" / "quota.npz", region=np.zeros(0, np.int64), quota=np.zeros(0, np.int64))
+    assert D._spent(tmp_path, st, 0) == 0.0 and D._spent(tmp_path, st, 1) == 0.0
+
+
 @pytest.mark.slurm
 def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     """Every job through sbatch with the unchanged workflow profile, each COMPLETED in sacct, and

@@ -233,7 +233,8 @@ def _cut(out, st):
                 for i, _, _ in st.blocks_of(slab):
                     runmax.append(z[f"runmax_{i}"])
                     inner.append(int(z[f"inner_{i}"]))
-                    sse.append(z[f"sse_{i}"])
+                    # a run started before the errors were recorded has no budget: zeros stand in
+                    sse.append(z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(runmax[-1])))
     tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT, sse,
                       st.budget())
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
@@ -253,10 +254,10 @@ def _tau(out):
 
 def _spent(out, st, p):
     """The squared error the stages before pass ``p`` may have added (the blocks', then each
-    pass's quota cut)."""
+    pass's quota cut; 0 in a run begun by a version that recorded none, which had no budget)."""
     if p == 0:
-        return float(_tau(out)[1]["sse"])
-    return float(_load(out / "passes" / str(p - 1) / "quota.npz")["spent"])
+        return float(_tau(out)[1].get("sse", 0.0))
+    return float(_load(out / "passes" / str(p - 1) / "quota.npz").get("spent", 0.0))
 
 
 def _mesh(out, st, slab):
@@ -363,7 +364,8 @@ def _region_costs(out, st, p, slab):
         i = inp(r)
         runmax, sse, result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
                                                 tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
-                                                quota=int(z[f"cap_{r}"]), costs=True, budget=float(plan["budget"]))
+                                                quota=int(z[f"cap_{r}"]), costs=True,
+                                                budget=float(plan.get("budget", INF)))
         res[f"runmax_{r}"] = runmax
         res[f"sse_{r}"] = sse
         res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
@@ -381,10 +383,11 @@ def _quota(out, st, p):
     regions = [int(r) for r in plan["region"]]
     q, added = np.zeros(0, np.int64), 0.0
     if plan["ran"]:
+        sses = [sse.get(r, np.zeros(len(runmax[r]))) for r in regions]  # none in a run begun before they were
         q, added = B.cut_quota([runmax[r] for r in regions], None if plan["surplus"] < 0 else int(plan["surplus"]),
-                               [sse[r] for r in regions], float(plan["budget"]))
+                               sses, float(plan.get("budget", INF)))
     _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
-                  spent=np.float64(float(plan["spent"]) + added))
+                  spent=np.float64(float(plan.get("spent", 0.0)) + added))
 
 
 def _region_apply(out, st, p, slab):
