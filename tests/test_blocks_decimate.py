@@ -145,6 +145,15 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     mb = {k: D.job_resources(full, plan, k)[0] for k in ("costs", "rcosts", "step", "finish")}
     assert mb["costs"] < mb["rcosts"] < 2600 and mb["rcosts"] > 2000
     assert D.job_resources({**full, "block": 32}, D.plan_decimation(plan.shape, 32), "rcosts")[0] < 700
+    # the whole-grid jobs ask for the mesh the stop allows: f4 at 129^3 in blocks of 32 with fitted values
+    # peaked at 175 and 551 MB (step) and 279 and 1348 MB (finish) at 5 % and 50 % (docs/notes)
+    p129 = D.plan_decimation((129,) * 3, 32)
+    ask = {f: {k: D.job_resources({**full, "fraction": f, "plan": p129.to_dict()}, p129, k)[0]
+               for k in ("step", "finish")} for f in (0.05, 0.5)}
+    assert 175 < ask[0.05]["step"] < ask[0.5]["step"] and 551 < ask[0.5]["step"] < 2 * 551 + 400
+    assert 279 < ask[0.05]["finish"] < ask[0.5]["finish"] and 1348 < ask[0.5]["finish"] < 2 * 1348 + 400
+    alone = {k: D.job_resources({**full, "tol_rms": 1.0, "plan": p129.to_dict()}, p129, k)[0] for k in ask[0.5]}
+    assert all(alone[k] >= ask[0.5][k] for k in alone)  # a tolerance alone: the whole grid's mesh
     # a dry run lists the jobs and writes nothing
     assert main(["blocks", "--function", "4", "--n", "16", "--block", "8", "--method", "decimate", "--count", "100",
                  "-n", "--out", str(tmp_path / "dry")]) == 0

@@ -41,7 +41,7 @@ from ..methods import get_method
 from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
                item_name, publish_results, read_config)
 
-__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "job_resources", "check_job_memory"]
+__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "check_job_memory"]
 
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
@@ -55,14 +55,17 @@ VALUES = ("data", "fit")
 
 #: Bytes per point of a block's or a region's decimation (as ``trivsel reduce`` estimates it)
 DECIMATION_BYTES_PER_POINT = 1000
-#: Bytes per grid point of a step job (owners, flags, the candidates' regions) and per
-#: tetrahedron (rows, their regions)
-STEP_BYTES_PER_POINT = 60
-STEP_BYTES_PER_TET = 100
-#: Bytes per grid point of the last job: the points' weights and residuals, with fitted
-#: values the normal equations too
-FINISH_BYTES_PER_POINT = 120
-FIT_BYTES_PER_POINT = 150
+#: Bytes per grid point and per tetrahedron of the whole mesh, of a step job (owners and flags per point;
+#: the tetrahedra, their regions and the pass plan's temporaries) and of the last job (the points' weights and
+#: residuals in chunks, the merged mesh written, with fitted values their normal equations): measured on f4 at
+#: 129^3 in blocks of 32 to 5 % and 50 % with fitted values, about 11 and 60 (step), 47 and 190 (last job)
+#: above the interpreter's 55 MB (docs/notes), with room
+STEP_BYTES_PER_POINT = 40
+STEP_BYTES_PER_TET = 80
+FINISH_BYTES_PER_POINT = 60
+FINISH_BYTES_PER_TET = 240
+#: Tetrahedra per vertex of a decimated grid (5.6-5.9 measured; a Kuhn split has 6 per cell)
+TETS_PER_VERTEX = 6
 
 
 def make_config(config, shape):
@@ -479,8 +482,9 @@ def _finish(out, st):
     summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(len(T)),
                "E_rms": errors["E_rms"], "E_inf": errors["E_inf"], "E_rms_interior": errors["E_rms_interior"],
                "E_inf_interior": errors["E_inf_interior"], "method": "decimate", "target": target,
-               "tol_rms": cfg.get("tol_rms"), "tol_inf": cfg.get("tol_inf"), "stopped": why, "blocks": len(plan.blocks()),
-               "cost_threshold": float(tau) if np.isfinite(tau) else None, "passes": len(st.passes)}
+               "tol_rms": cfg.get("tol_rms"), "tol_inf": cfg.get("tol_inf"), "stopped": why,
+               "blocks": len(plan.blocks()), "cost_threshold": float(tau) if np.isfinite(tau) else None,
+               "passes": len(st.passes)}
     if fit is not None:
         summary["fit"] = {k: float(v) for k, v in fit["errors"].items()}
     _atomic_write_text(staged / "summary.json", json.dumps(summary, indent=1))
@@ -510,6 +514,18 @@ def _write_mesh(path, vol, shape, tets, f, fit_at):
                 overwrite=True, arrays=arrays)
 
 
+def mesh_tets(cfg, plan):
+    """The most tetrahedra the mesh over the whole grid has in a run (what the step and last jobs
+    hold): TETS_PER_VERTEX a vertex, the vertices after the blocks at most the cut's aim (OVERSHOOT
+    times the count) and every seam point; without a count (a tolerance alone), the whole grid's."""
+    N = plan.n_points()
+    target = Stages(cfg, plan).target()
+    if target is None:
+        return TETS_PER_VERTEX * N
+    inner = np.prod([n - max(len(c) - 2, 0) for n, c in zip(plan.shape, plan.cuts)])
+    return TETS_PER_VERTEX * min(N, int(B.OVERSHOOT * target) + int(N - inner))
+
+
 def job_resources(cfg, plan, kind):
     """``(mem_mb, runtime_minutes)`` to request for a job of ``kind``: "costs" and "mesh"
     (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "step",
@@ -523,10 +539,11 @@ def job_resources(cfg, plan, kind):
     elif kind in ("rcosts", "apply"):
         mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
     elif kind == "step":
-        mem, secs = JOB_BASE_BYTES + (STEP_BYTES_PER_POINT + STEP_BYTES_PER_TET) * N, 60 + 2e-6 * N
+        mem = JOB_BASE_BYTES + STEP_BYTES_PER_POINT * N + STEP_BYTES_PER_TET * mesh_tets(cfg, plan)
+        secs = 60 + 2e-6 * N
     elif kind == "finish":
-        fit = FIT_BYTES_PER_POINT if "fit" in (cfg.get("values") or ()) else 0
-        mem, secs = JOB_BASE_BYTES + (FINISH_BYTES_PER_POINT + fit) * N, 60 + 1e-5 * N
+        mem = JOB_BASE_BYTES + FINISH_BYTES_PER_POINT * N + FINISH_BYTES_PER_TET * mesh_tets(cfg, plan)
+        secs = 60 + 1e-5 * N
     elif kind == "kernels":
         mem, secs = 2 * JOB_BASE_BYTES, 600
     else:  # cut, quota
