@@ -480,14 +480,18 @@ def _cmd_convert(a):
     return 0
 
 
+#: The settings of ``trivsel blocks`` that options and ``--config`` keys share (``merged`` is ``--no-merged``)
+BLOCKS_KEYS = ("input", "function", "n", "array", "volume", "block", "tol_inf", "method", "count", "fraction",
+               "tol_rms", "values")
+
+
 def _cmd_blocks(a, snakemake_args):
     from .blocks import run_workflow
 
     config = {}
     if a.config:
         config = _read_yaml(a.config)
-    for key in ("input", "function", "n", "array", "volume", "block", "tol_inf", "method", "count", "fraction",
-                "tol_rms", "values"):
+    for key in BLOCKS_KEYS:
         if getattr(a, key) is not None:
             config[key] = getattr(a, key)
     if a.no_merged:
@@ -537,8 +541,7 @@ def _read_yaml(path):
         raise InputError(f"cannot read config {path}: {one_line(exc, first=True)}") from None
     if not isinstance(d, dict):
         raise InputError(f"config {path} must be a mapping of settings, got {type(d).__name__}")
-    known = {"input", "function", "n", "array", "volume", "block", "tol_inf", "method", "merged", "count", "fraction",
-             "tol_rms", "values"}
+    known = {*BLOCKS_KEYS, "merged"}
     unknown = sorted(set(d) - known)
     if unknown:
         raise InputError(f"config {path}: unknown key {unknown[0]!r} (known: {', '.join(sorted(known))})")

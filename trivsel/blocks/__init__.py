@@ -602,6 +602,14 @@ def check_new_input(out, full):
         check_values(_open(full))
 
 
+def check_tolerance(name, tol):
+    """One-line InputError unless the tolerance ``name`` of a configuration is None or a
+    finite number >= 0 (a YAML value may be of any type)."""
+    if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol)
+                            or tol < 0):
+        raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
+
+
 def make_config(config):
     """Check a blocked run's configuration and complete it (no file is written).
 
@@ -617,9 +625,9 @@ def make_config(config):
     method = config.get("method", "greedy")
     stages = getattr(get_method(method), "BLOCK_STAGES", None)  # a method's own stages in blocks
     tol = config.get("tol_inf")
-    if not (tol is None and stages) and (isinstance(tol, bool) or not isinstance(tol, (int, float))
-                                          or not np.isfinite(tol) or tol < 0):
+    if tol is None and not stages:  # the inserting methods stop in blocks at tol_inf only
         raise InputError(f"tol_inf must be a finite number >= 0, got {shown(tol)}")
+    check_tolerance("tol_inf", tol)
     if not get_method(method).PRESCRIBED_BOUNDARY and not stages:  # the 3-D stage starts from prescribed triangles
         able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY or getattr(m, "BLOCK_STAGES", None)]
         raise InputError(f"method {method!r} cannot take the blocks' prescribed faces: choose {' or '.join(able)}")

@@ -39,7 +39,7 @@ import numpy as np
 
 from ..methods import get_method
 from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
-               item_name, publish_results, read_config)
+               check_tolerance, item_name, publish_results, read_config)
 
 __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "check_job_memory"]
 
@@ -87,9 +87,7 @@ def make_config(config, shape):
                                  or not 0 < fraction <= 1):
         raise InputError(f"fraction must be a number in (0, 1]; got {shown(fraction)}")
     tol_rms = config.get("tol_rms")
-    if tol_rms is not None and (isinstance(tol_rms, bool) or not isinstance(tol_rms, (int, float))
-                                or not np.isfinite(tol_rms) or tol_rms < 0):
-        raise InputError(f"tol_rms must be a finite number >= 0, got {shown(tol_rms)}")
+    check_tolerance("tol_rms", tol_rms)
     if count is None and fraction is None and tol_rms is None and config.get("tol_inf") is None:
         raise InputError("give a stop: --count, --fraction, --tol-rms or --tol-inf")
     values = config.get("values") or ["data"]
@@ -99,7 +97,8 @@ def make_config(config, shape):
             or len(set(values)) != len(values):
         raise InputError(f"values must be a list of {' and '.join(VALUES)} (each once); got {shown(values)}")
     return {"count": None if count is None else int(count), "fraction": None if fraction is None else float(fraction),
-            "tol_rms": None if tol_rms is None else float(tol_rms), "values": list(values), "plan": plan_decimation(shape, int(config["block"])).to_dict()}
+            "tol_rms": None if tol_rms is None else float(tol_rms), "values": list(values),
+            "plan": plan_decimation(shape, int(config["block"])).to_dict()}
 
 
 def check_job_memory(full):

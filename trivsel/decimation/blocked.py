@@ -555,7 +555,7 @@ def pass_runs(cand, surplus, left):
     return bool(cand.any()) and (surplus is None or surplus > 0) and left >= 0
 
 
-def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1, *, costed=None,
+def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1, *, costed,
                  budget=INF):
     """One pass over the regions of edge ``size`` cut at ``offset + k size``
     (:func:`pass_plan`), each decimated down to ``tau`` and, when ``costed`` (a ``surplus``
@@ -563,7 +563,6 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     most that many vertices and that error, the cheapest (:func:`cut_quota`): returns the new
     mesh, owners, vertex flags, the candidates left (not free in any region of this grid) and
     the pass's counts (``sse``: the squared error it may have added)."""
-    costed = surplus is not None if costed is None else costed
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
@@ -688,7 +687,7 @@ def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=
     if progress is not None:
         progress(m, target or m, shot.errors["E_rms"], shot.errors["E_inf"], time.perf_counter() - t_start)
     st = out["stats"]
-    stats = {"collapses": N - m, "tets": int(len(out["tets"])), "stopped": stop_reason(m, target, tol_inf, block, tol_rms),
-             "blocks": st["blocks"], "cost_threshold": st["tau"], "after_blocks": st["after_blocks"],
+    stats = {"collapses": N - m, "tets": int(len(out["tets"])),
+             "stopped": stop_reason(m, target, tol_inf, block, tol_rms), "blocks": st["blocks"], "cost_threshold": st["tau"], "after_blocks": st["after_blocks"],
              "after_regions": st["after_seams"]}
     return [shot], out["vertices"], stats, time.perf_counter() - te
