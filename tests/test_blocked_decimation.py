@@ -9,7 +9,7 @@ import pytest
 from trivsel.blocks import check_tetrahedra
 from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
-from trivsel.decimation.blocked import block_cuts, decimate_in_blocks
+from trivsel.decimation.blocked import block_cuts, decimate_in_blocks, quality_note
 from trivsel.selection import count_for_fraction
 
 
@@ -139,6 +139,19 @@ def test_identical_runs_give_identical_meshes_in_one_process_or_two():
     assert all(np.array_equal(a[k], b[k]) and np.array_equal(a[k], c[k]) for k in ("vertices", "tets", "ptet"))
 
 
+@pytest.mark.parametrize("n, target, block, noted", [
+    (1000, 50, 32, False), (1000, 500, 64, False), (1000, 49, 32, True), (1000, 50, 16, True),
+    (1000, 900, 31, True), (1000, None, 16, False)])
+def test_a_count_in_blocks_is_noted_where_it_was_measured_to_lose(n, target, block, noted):
+    """Blocks under FAITHFUL_BLOCK, or a count under FAITHFUL_FRACTION of the points, get one line that
+    names the block, the share of the points and what to do; a tolerance alone (no count) gets none."""
+    note = quality_note(n, target, block)
+    assert (note is not None) == noted
+    if noted:
+        assert "\n" not in note and f"blocks of {block} to {100 * target / n:.3g} %" in note
+        assert "use larger blocks" in note
+
+
 def test_reduce_with_block_gives_the_count_and_errors_of_its_mesh():
     """``trivsel.reduce(..., block=B)``: one snapshot at the count, its errors those of its own
     tetrahedra (recomputed here), fitted values at least as good as the data values."""
@@ -154,6 +167,7 @@ def test_reduce_with_block_gives_the_count_and_errors_of_its_mesh():
     assert np.allclose(residuals(vol, out), s.residuals, atol=1e-12)
     assert s.fit["errors"]["E_rms"] <= s.errors["E_rms"]
     assert r.options["block"] == 10
+    assert r.notes == [quality_note(vol.size, 1337, 10)]  # blocks under 32: the run says what it may cost
     # to an E_RMS tolerance: the mesh of decimate_in_blocks, within it
     tol = 0.9 * s.errors["E_rms"]
     (t,) = trivsel.reduce(vol, tol_rms=tol, method="decimate", block=10).snapshots

@@ -10,7 +10,7 @@ import pytest
 from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import sample_grid
-from trivsel.decimation.blocked import decimate_in_blocks, point_weights
+from trivsel.decimation.blocked import decimate_in_blocks, point_weights, quality_note
 
 pytest.importorskip("snakemake")
 
@@ -36,7 +36,10 @@ def test_the_jobs_give_the_mesh_of_one_process_with_its_errors(tmp_path, capsys)
     argv = ["blocks", "--function", "4", "--n", str(n), "--block", str(block), "--method", "decimate", "--count",
             str(count), "--out", str(out), "-c", "2"]
     assert main(argv) == 0
-    assert "3000 of 68921 points" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "3000 of 68921 points" in err
+    note = quality_note(68921, count, block)  # blocks of 16, 4.35 % of the points
+    assert f"trivsel blocks: note: {note}\n" in err
     ref = decimate_in_blocks(vol, block, count=count)
     m, ids, tets = _read(out / "mesh.vtu")
     assert np.array_equal(np.sort(ids), ref["vertices"]) and _same_tets(tets, ref["tets"])
@@ -50,6 +53,7 @@ def test_the_jobs_give_the_mesh_of_one_process_with_its_errors(tmp_path, capsys)
     r = f - np.einsum("ij,ij->i", w, f[verts])
     s = json.loads((out / "summary.json").read_text())
     assert s["vertices"] == count and s["tetrahedra"] == len(tets) and s["stopped"] == "the count was reached"
+    assert s["notes"] == [note]
     assert s["E_rms"] == pytest.approx(np.sqrt(np.mean(r**2)), rel=1e-12)
     assert s["E_inf"] == pytest.approx(np.abs(r).max(), rel=1e-12)
     # a rerun has nothing to do; another count in the same folder is refused

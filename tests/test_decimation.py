@@ -8,7 +8,7 @@ not use the kernel's buckets.
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from conftest import examples
@@ -18,7 +18,7 @@ from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import grid_from_array
 from trivsel.decimation import INF, Decimation, grid_tetrahedra, reduce_by_collapse
-from trivsel.decimation.collapse import _best
+from trivsel.decimation.collapse import _best, _planes, _value_in, _value_moved
 
 
 def _det(a, b, c, d):
@@ -143,6 +143,52 @@ def test_queued_costs_are_those_of_a_brute_force_collapse(key):
         checked += np.sum(before[moving] ** 2) > 1e-4  # the collapse replaces real residuals
     assert checked >= 20
     assert np.ptp(S.hkey[S.hpos >= 0]) > 0.1  # real costs, not only zero ones
+
+
+@settings(deadline=None, max_examples=examples(1))
+@given(st.integers(0, 2**31), st.integers(0, 3), st.integers(1, 40))
+def test_a_point_in_a_moved_tetrahedron_is_weighed_as_by_four_orientations(seed, slot, span):
+    """On grid coordinates ``_value_moved`` finds p's weights from the far face's plane and two
+    orientations (the last by difference): the same answer, bit for bit, as the four
+    orientations of ``_value_in``, inside, outside and on the faces, for any target w."""
+    rng = np.random.default_rng(seed)
+    P = rng.integers(-span, span + 1, size=(40, 3)).astype(np.int64)
+    P[5:] = P[rng.integers(0, 5, size=35)] * rng.integers(0, 2, size=(35, 1)) + rng.integers(-2, 3, size=(35, 3))
+    f = rng.normal(size=len(P))
+    q = rng.choice(5, size=4, replace=False)  # a tet, vertex v in ``slot``, w a sixth point
+    v, w = q[slot], [x for x in range(5) if x not in q][0]
+    if _det(*(P[x] for x in q)) < 0:
+        q[[0, 1]] = q[[1, 0]]
+        slot = {0: 1, 1: 0}.get(slot, slot)
+    Q = q[None].astype(np.int64)
+    sc = np.array([slot], np.int64)
+    moved = [w if s == slot else q[s] for s in range(4)]
+    assume(_det(*(P[x] for x in q)) > 0 and _det(*(P[x] for x in moved)) > 0)  # as a valid collapse has them
+    assert Q[0, slot] == v
+    # on the moved tet, by construction: its centroid, the midpoints of its edges, the centroids of its faces
+    P *= 12
+    M = P[moved]
+    on = [M.sum(0) // 4] + [(M[a] + M[b]) // 2 for a in range(4) for b in range(a + 1, 4)]
+    on += [(M.sum(0) - M[a]) // 3 for a in range(4)]
+    P = np.concatenate([P, np.array(on)])
+    f = np.concatenate([f, rng.normal(size=len(on))])
+    G = np.zeros((1, 4), np.int64)
+    _planes(P, Q, sc, 1, G)
+    seen = 0
+    for p in range(len(P)):
+        got = _value_moved(P, False, f, Q, G, sc, 0, w, p)
+        want = _value_in(P, False, f, *moved, p)
+        assert got[0] == want[0] and (not got[0] or got[1] == want[1]), (p, got, want)
+        seen += got[0]
+    assert seen >= len(on) + 4  # those, and the moved tet's corners
+    # another target
+    u = next((x for x in range(len(P))
+              if x not in q and x != w and _det(*(P[y] if y != v else P[x] for y in q)) > 0), None)
+    assume(u is not None)
+    at_u = [u if s == slot else q[s] for s in range(4)]
+    for p in range(len(P)):
+        got, want = _value_moved(P, False, f, Q, G, sc, 0, u, p), _value_in(P, False, f, *at_u, p)
+        assert got[0] == want[0] and (not got[0] or got[1] == want[1]), (u, p)
 
 
 @settings(deadline=None, max_examples=examples(1 / 6))

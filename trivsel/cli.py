@@ -528,6 +528,8 @@ def _cmd_blocks(a, snakemake_args):
           f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}"
           + (f"; fitted values: E_rms {s['fit']['E_rms']:.4g}, E_inf {s['fit']['E_inf']:.4g}" if "fit" in s else ""),
           file=sys.stderr)
+    for note in s.get("notes", []):
+        print(f"trivsel blocks: note: {note}", file=sys.stderr)
     return 0
 
 

@@ -486,6 +486,9 @@ def _finish(out, st):
                "passes": len(st.passes)}
     if fit is not None:
         summary["fit"] = {k: float(v) for k, v in fit["errors"].items()}
+    note = B.quality_note(N, target, st.block)
+    if note:
+        summary["notes"] = [note]
     _atomic_write_text(staged / "summary.json", json.dumps(summary, indent=1))
     for name in RESULTS:
         if name == "mesh.vtu" and not cfg.get("merged", True):

@@ -62,7 +62,7 @@ from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
            "sse_budget", "running_sse", "sse_at",
            "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
-           "decimate_in_blocks", "pass_runs", "stop_reason", "point_weights", "point_weights_of", "reduce_in_blocks"]
+           "decimate_in_blocks", "pass_runs", "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -82,6 +82,11 @@ OVERSHOOT = 1.2
 SSE_SHARE = OVERSHOOT ** (-4.0 / 3.0)
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
+#: A count's run in blocks keeps about one piece's errors down to this fraction of the points in blocks of
+#: FAITHFUL_BLOCK intervals and more; below either, it was measured well above one piece's E_RMS on real
+#: volumes (docs/methods.md), and its run says so (:func:`quality_note`)
+FAITHFUL_FRACTION = 0.05
+FAITHFUL_BLOCK = 32
 
 def block_cuts(n, block):
     """The grid indices where blocks of ``block`` intervals meet along an axis of ``n``
@@ -612,6 +617,20 @@ def stop_reason(vertices, target, tol_inf, block, tol_rms=None):
     # the tetrahedra grew as large as the regions: few of their vertices were free in any
     return (f"no more vertices were free in the regions of blocks of {block}: a larger block (or one piece) "
             "reaches the count")
+
+
+def quality_note(n_points, target, block):
+    """What a run in blocks of ``block`` intervals to ``target`` of ``n_points`` points (None: no
+    count) should tell its user: where a count's run in blocks was measured to lose against one
+    piece (blocks under :data:`FAITHFUL_BLOCK`, or fewer than :data:`FAITHFUL_FRACTION` of the
+    points: the region passes reach the count before they have freed every seam, or the last
+    quota passes take it from the few vertices one grid of regions frees), a one-line note;
+    None elsewhere."""
+    if target is None or (int(block) >= FAITHFUL_BLOCK and target >= FAITHFUL_FRACTION * n_points):
+        return None
+    return (f"decimate in blocks of {int(block)} to {100 * target / n_points:.3g} % of the points: below "
+            f"{100 * FAITHFUL_FRACTION:g} % or in blocks under {FAITHFUL_BLOCK}, runs in blocks were measured at up to "
+            f"3x one piece's E_RMS (docs/methods.md); use larger blocks, or one piece where it fits")
 
 
 def point_weights(shape, tets, ptet):

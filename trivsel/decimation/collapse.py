@@ -100,25 +100,67 @@ def _gather(S, sc, n, Q):
 
 
 @njit(cache=True, _nrt=False)
-def _value_moved(P, flt, f, Q, sc, i, w, p):
-    """``_value_in`` for star tet ``Q[i]`` with v's slot holding w."""
+def _value_moved(P, flt, f, Q, G, sc, i, w, p):
+    """``_value_in`` for star tet ``Q[i]`` with v's slot holding w.
+
+    On grid coordinates (``G``: the far faces' planes of ``_planes``) it takes two
+    orientations instead of four.  p's weight in v's slot s is the far face's plane at p,
+    which does not depend on w, and a tet's four weights sum to its orientation, the
+    plane at w, so the last weight is what the other three leave::
+
+              w (slot s)            l_s = G[i] . p + G[i, 3]     (p for w)
+             /|\                    D   = G[i] . w + G[i, 3]     (the tet)
+            / | \                   l_j = orient(p for q_j), for two slots j != s
+           /  p  \                  the last = D - l_s - the two
+          a---|---c
+           \  |  /                  All integers on the grid, so exactly the four
+            \ | /                   orientations of ``_value_in``.
+              b
+    """
     s = sc[i] & 3
-    return _value_in(P, flt, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
-                     w if s == 3 else Q[i, 3], p)
+    if flt:
+        return _value_in(P, flt, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
+                         w if s == 3 else Q[i, 3], p)
+    ls = G[i, 0] * P[p, 0] + G[i, 1] * P[p, 1] + G[i, 2] * P[p, 2] + G[i, 3]
+    if ls < 0:
+        return False, 0.0
+    D = G[i, 0] * P[w, 0] + G[i, 1] * P[w, 1] + G[i, 2] * P[w, 2] + G[i, 3]
+    q0 = w if s == 0 else Q[i, 0]
+    q1 = w if s == 1 else Q[i, 1]
+    q2 = w if s == 2 else Q[i, 2]
+    q3 = w if s == 3 else Q[i, 3]
+    # the first two slots other than s by orientation, the last other one by difference
+    ja = 1 if s == 0 else 0
+    jb = 2 if s <= 1 else 1
+    la = _orient(P, False, p, q1, q2, q3) if ja == 0 else _orient(P, False, q0, p, q2, q3)
+    if la < 0:
+        return False, 0.0
+    lb = _orient(P, False, q0, p, q2, q3) if jb == 1 else _orient(P, False, q0, q1, p, q3)
+    if lb < 0:
+        return False, 0.0
+    lc = D - ls - la - lb
+    if lc < 0:
+        return False, 0.0
+    # the weights by slot: s holds ls, ja and jb their own, the remaining slot lc
+    l0 = float(ls if s == 0 else (la if ja == 0 else lc))
+    l1 = float(ls if s == 1 else (la if ja == 1 else (lb if jb == 1 else lc)))
+    l2 = float(ls if s == 2 else (lb if jb == 2 else lc))
+    l3 = float(ls if s == 3 else lc)
+    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / (l0 + l1 + l2 + l3)
 
 
 @njit(cache=True, _nrt=False)
-def _locate_star(P, flt, f, Q, sc, kw, n, w, p, hint):
+def _locate_star(P, flt, f, Q, G, sc, kw, n, w, p, hint):
     """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
     w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
     if hint >= 0 and not kw[hint]:
-        ok, val = _value_moved(P, flt, f, Q, sc, hint, w, p)
+        ok, val = _value_moved(P, flt, f, Q, G, sc, hint, w, p)
         if ok:
             return hint, val
     for i in range(n):
         if i == hint or kw[i]:
             continue
-        ok, val = _value_moved(P, flt, f, Q, sc, i, w, p)
+        ok, val = _value_moved(P, flt, f, Q, G, sc, i, w, p)
         if ok:
             return i, val
     return -1, 0.0
@@ -258,7 +300,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
             return INF, INF, shared
     if shared == 0:
         return INF, INF, shared
-    i, val = _locate_star(P, flt, f, Q, sc, kw, n, w, v, -1)
+    i, val = _locate_star(P, flt, f, Q, G, sc, kw, n, w, v, -1)
     if i < 0:
         return INF, INF, shared
     r = f[v] - val
@@ -271,7 +313,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
         if (mx if use_max else new - old) > bound:
             return INF, INF, shared
         p = pbuf[k]
-        i, val = _locate_star(P, flt, f, Q, sc, kw, n, w, p, phome[k])
+        i, val = _locate_star(P, flt, f, Q, G, sc, kw, n, w, p, phome[k])
         if i < 0:
             return INF, INF, shared
         r = f[p] - val
@@ -330,12 +372,15 @@ def _collapse(S, v, w, sc, n):
     ``_cost`` located them."""
     T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
     m, _ = _gather(S, sc, n, Q)
+    flt = S.ctr[C_FLOAT] != 0
+    if not flt:
+        _planes(P, Q, sc, n, S.G)
     for i in range(n):
         kw[i] = _has(Q, i, w)
     # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
     for k in range(-1, m):
         p = v if k < 0 else pbuf[k]
-        i, val = _locate_star(P, S.ctr[C_FLOAT] != 0, f, Q, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
+        i, val = _locate_star(P, flt, f, Q, S.G, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
         S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
         r = f[p] - val
         S.acc[0] += r * r - res[p] * res[p]

@@ -154,7 +154,7 @@ def check_blocks(data, options, stop):
 
 def _run_in_blocks(problem, interior, targets):
     """The run in blocks (:func:`trivsel.decimation.blocked.reduce_in_blocks`)."""
-    from ..decimation.blocked import reduce_in_blocks
+    from ..decimation.blocked import quality_note, reduce_in_blocks
 
     data, opts, stop = problem.data, problem.options, problem.stop
     N = data.n_points
@@ -164,6 +164,10 @@ def _run_in_blocks(problem, interior, targets):
         threads=problem.threads, progress=problem.progress, t_start=problem.t_start)
     requested_fractions(snaps, stop["fractions"], N)
     notes = unreached(stop, N, snaps[0].n_selected, stats.pop("stopped"), up=False)
+    note = quality_note(N, target, opts.block)
+    if note:
+        notes.append(note)
+        logging.getLogger("trivsel").warning("note: %s", note)
     t_total = time.perf_counter() - problem.t_start
     timings = {"curvature": 0.0, "selection": t_total - t_errors, "errors": t_errors, "total": t_total}
     return MethodRun(snapshots=snaps, selected=selected, curvature=None, order=selected, timings=timings,
