@@ -142,7 +142,7 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     plan = D.plan_decimation((197, 233, 189), 64)
     assert plan.counts == (3, 4, 3)
     st = D.Stages({"block": 64, "fraction": 0.05, "plan": plan.to_dict()}, plan)
-    assert [k for k, _ in st.passes] == ["seams"] * 3 + ["quota"] * 4 and st.target() == 433764
+    assert [k for k, _ in st.passes] == ["seams"] * 3 + ["quota"] * 4 + ["rest"] * 4 and st.target() == 433764
     assert D.Stages({"block": 64, "tol_inf": 1.0, "plan": plan.to_dict()}, plan).passes == st.passes[:3]
     assert D.Stages({"block": 64, "tol_rms": 1.0, "plan": plan.to_dict()}, plan).passes == st.passes  # a budget
     # a block job holds one block's decimation; a region job one region's (2 x 2 x 2 blocks)

@@ -237,8 +237,7 @@ def _cut(out, st):
                     inner.append(int(z[f"inner_{i}"]))
                     # a run started before the errors were recorded has no budget: zeros stand in
                     sse.append(z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(runmax[-1])))
-    tau = B.threshold(runmax, inner, N - sum(inner), None if target is None else target * B.OVERSHOOT, sse,
-                      st.budget())
+    tau = B.threshold(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse, st.budget())
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": B.sse_at(sse, counts) if counts else 0.0}))
@@ -260,6 +259,14 @@ def _spent(out, st, p):
     if p == 0:
         return float(_tau(out)[1].get("sse", 0.0))
     return float(_load(out / "passes" / str(p - 1) / "quota.npz").get("spent", 0.0))
+
+
+def _limit(out, st, p):
+    """The quota passes' cost limit as the passes before ``p`` left it (:func:`trivsel.decimation.blocked.quota_limit`):
+    nan while no quota pass has derived it (and in a run begun by a version that had none)."""
+    if p == 0 or not st.costed:
+        return float("nan")
+    return float(_load(out / "passes" / str(p - 1) / "quota.npz").get("limit", float("nan")))
 
 
 def _mesh(out, st, slab):
@@ -322,7 +329,7 @@ def _step(out, st, p):
     surplus = None if target is None else int(isv.sum()) - target
     spent = _spent(out, st, p) if st.costed else 0.0
     left = st.budget() - spent
-    run = B.pass_runs(c, surplus, left)
+    run = B.pass_runs(c, surplus, left, kind)
     folder = out / "passes" / str(p)
     _atomic_savez(folder / "state.npz", T=T, owner=owner, isv=isv, cand=cand)
     dims = st.region_dims(p)
@@ -334,10 +341,12 @@ def _step(out, st, p):
     tau, _ = _tau(out)
     tau_p = tau if kind == "seams" else INF
     caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and st.costed else None
+    share = float(plan["nfree"].sum()) / max(int(isv.sum()), 1)  # of the vertices, those its regions free
     _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
                   region=plan["region"], left=plan["left"], ran=np.bool_(run),
                   surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p),
-                  spent=np.float64(spent), budget=np.float64(left))
+                  spent=np.float64(spent), budget=np.float64(left), share=np.float64(share),
+                  limit=np.float64(_limit(out, st, p)))
     per = int(dims[1] * dims[2])
     for slab in st.region_slabs(p):
         res = {}
@@ -384,12 +393,18 @@ def _quota(out, st, p):
         sse.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("sse_")})
     regions = [int(r) for r in plan["region"]]
     q, added = np.zeros(0, np.int64), 0.0
+    limit = float(plan.get("limit", float("nan")))
+    surplus = None if plan["surplus"] < 0 else int(plan["surplus"])
     if plan["ran"]:
         sses = [sse.get(r, np.zeros(len(runmax[r]))) for r in regions]  # none in a run begun before they were
-        q, added = B.cut_quota([runmax[r] for r in regions], None if plan["surplus"] < 0 else int(plan["surplus"]),
-                               sses, float(plan.get("budget", INF)))
+        costs = [runmax[r] for r in regions]
+        # with a count, the quota passes take nothing above the limit the first of them derives
+        limited = st.passes[p][0] == "quota" and surplus is not None
+        if limited and np.isnan(limit):
+            limit = B.quota_limit(costs, surplus, float(plan.get("share", 1.0)))
+        q, added = B.cut_quota(costs, surplus, sses, float(plan.get("budget", INF)), limit if limited else INF)
     _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
-                  spent=np.float64(float(plan.get("spent", 0.0)) + added))
+                  spent=np.float64(float(plan.get("spent", 0.0)) + added), limit=np.float64(limit))
 
 
 def _region_apply(out, st, p, slab):
@@ -518,14 +533,15 @@ def _write_mesh(path, vol, shape, tets, f, fit_at):
 
 def mesh_tets(cfg, plan):
     """The most tetrahedra the mesh over the whole grid has in a run (what the step and last jobs
-    hold): TETS_PER_VERTEX a vertex, the vertices after the blocks at most the cut's aim (OVERSHOOT
-    times the count) and every seam point; without a count (a tolerance alone), the whole grid's."""
+    hold): TETS_PER_VERTEX a vertex, the vertices after the blocks at most the cut's aim
+    (:func:`trivsel.decimation.blocked.aim`) and every seam point; without a count (a tolerance
+    alone), the whole grid's."""
     N = plan.n_points()
     target = Stages(cfg, plan).target()
     if target is None:
         return TETS_PER_VERTEX * N
     inner = np.prod([n - max(len(c) - 2, 0) for n, c in zip(plan.shape, plan.cuts)])
-    return TETS_PER_VERTEX * min(N, int(B.OVERSHOOT * target) + int(N - inner))
+    return TETS_PER_VERTEX * min(N, int(B.aim(target, N, int(N - inner))) + int(N - inner))
 
 
 def job_resources(cfg, plan, kind):

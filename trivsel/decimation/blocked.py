@@ -10,7 +10,7 @@ into blocks that share their faces (the *seams*)::
              collapses in the order made, each with its cost)
     cut      one cost threshold tau for all the blocks, from the sequences' running
              maxima: the blocks' points left at tau, and the seams' at the blocks'
-             density, come to OVERSHOOT times the count asked for
+             density, come to about twice the count asked for (``aim``)
     blocks   every block's recorded collapses replayed up to its first that costs more
              than tau (no cost computed again): the prefix of its recorded sequence
              (without a count, tau is inf and every block runs to ``tol_inf``)
@@ -22,9 +22,14 @@ into blocks that share their faces (the *seams*)::
              see.  Its other vertices are locked, and it is decimated (exact queue) down
              to tau.  The vertices near a region's cut are not free; two more grids, cut
              elsewhere, free them
-    quota    the vertices still over the count are taken from the regions of one more
-             grid by one more threshold: each region records its cheapest collapses, and
-             the cheapest of all, a prefix of each region's sequence, are made
+    quota    the vertices still over the count are taken from the regions of four more
+             grids: each region records its cheapest collapses, and the cheapest of all
+             in a grid, a prefix of each region's sequence, are made.  With a count, none
+             above one cost (``quota_limit``): the cost at which the first grid's regions
+             remove their share of what is left (the part of the vertices they free), so
+             that the grids share it by cost and no grid takes it alone
+    rest     what that cost left of the count, from the regions of four grids again,
+             the cheapest first
 
 With ``tol_rms`` the squared error is a budget, ``tol_rms^2 N``, that the stages share without
 ever exceeding it.  Every recorded sequence carries its running squared error (the exact
@@ -60,8 +65,9 @@ from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
-           "sse_budget", "running_sse", "sse_at",
-           "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "merge_pass",
+           "sse_budget", "running_sse", "sse_at", "aim",
+           "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "quota_limit",
+           "merge_pass",
            "decimate_in_blocks", "pass_runs", "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
@@ -71,12 +77,22 @@ REGION = 2
 SEAM_SHIFTS = (0.5, 1.5, 0.25)
 #: The shifts of the quota passes' region grids, in blocks
 QUOTA_SHIFTS = (0.0, 1.0, 0.5, 1.5)
-#: The cut aims at this many times the count asked for, so that the region passes end above it and the
-#: quota step takes the rest (the regions free every vertex, and remove more than the blocks' sequences show)
+#: The shifts of the grids of the passes that take what the quota passes left of a count (their cost limit,
+#: :func:`quota_limit`, may leave some), in blocks
+REST_SHIFTS = (0.0, 1.0, 0.5, 1.5)
+#: The cut aims above the count asked for (:func:`aim`), so that the seam passes end above it and the quota
+#: passes take the rest, spread over their four grids by one cost (:func:`quota_limit`): OVERSHOOT times the
+#: count, more where the seams are wide against the count.  The regions free every vertex and remove more than
+#: the blocks' sequences show, about a band of vertices along the seams that the blocks kept: with an aim of
+#: 1.2 times, blocks of 16 on a T1 crop reached a count of 2 % in the seam passes, before their last grid had
+#: freed the seams, at 2.9 times one piece's E_RMS (measured: docs/notes)
 OVERSHOOT = 1.2
+#: The aim grows by BAND_GROWTH times the seams' band (:func:`aim`) over BAND_FREE, up to MAX_OVERSHOOT times the
+#: count, and never beyond the count plus AIM_SHARE of the points over it
+BAND_GROWTH, BAND_FREE, MAX_OVERSHOOT, AIM_SHARE = 2.0, 0.3, 2.0, 0.2
 #: With ``tol_rms``, the cut aims the blocks' squared error (projected over the seams) at this share of the
-#: budget, so that the region passes end within it and the quota passes spend the rest.  It is the share of
-#: the error that OVERSHOOT leaves by count, the squared error of a trilinear fit growing about as m^(-4/3)
+#: budget, so that the region passes end within it and the quota passes spend the rest: the share of the
+#: error that 1.2 times the count leaves, the squared error of a trilinear fit growing about as m^(-4/3)
 #: with m vertices.  A larger share runs the seam passes out of budget before their last grid has freed the
 #: seams, a smaller one leaves the quota passes more than they spend well (measured: docs/notes)
 SSE_SHARE = OVERSHOOT ** (-4.0 / 3.0)
@@ -110,10 +126,13 @@ def block_list(shape, block):
 
 def passes(block):
     """The passes after the blocks, in order, as ``(kind, offset)``: the seam passes
-    (``"seams"``, down to the threshold) and the quota passes (``"quota"``), each on the grid
-    of regions of edge ``REGION * block`` whose cuts are at ``offset + k REGION block``."""
+    (``"seams"``, down to the threshold), the quota passes (``"quota"``; with a count, none
+    above one cost, :func:`quota_limit`) and, with a count, the passes that take what they
+    left (``"rest"``, cheapest first), each on the grid of regions of edge ``REGION * block``
+    whose cuts are at ``offset + k REGION block``."""
     return ([("seams", round(s * block)) for s in SEAM_SHIFTS]
-            + [("quota", round(s * block)) for s in QUOTA_SHIFTS])
+            + [("quota", round(s * block)) for s in QUOTA_SHIFTS]
+            + [("rest", round(s * block)) for s in REST_SHIFTS])
 
 
 def region_grid(shape, offset, size):
@@ -209,6 +228,21 @@ def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, rec
     row = np.cumsum(dec.S.alive) - 1
     inside = np.flatnonzero(~dec.S.isv)
     return gid[dec.tetrahedra()], gid[inside], row[dec.S.ptet[inside]], len(dec.removed())
+
+
+def aim(target, n_points, seam_points):
+    """The count the blocks' cut aims at for a count of ``target`` of ``n_points`` points
+    (None: none), ``seam_points`` of them on the seams.  The seams' *band*, the vertices that
+    a vertex spacing on each side of them holds against the count, is
+    ``seam_points / n_points * (n_points / target)^(1/3)``; the aim is :data:`OVERSHOOT`
+    times the count, plus :data:`BAND_GROWTH` times the band over :data:`BAND_FREE`, at most
+    :data:`MAX_OVERSHOOT` times the count and the count plus :data:`AIM_SHARE` of the points
+    over it."""
+    if target is None:
+        return None
+    band = seam_points / n_points * (n_points / max(target, 1)) ** (1.0 / 3.0)
+    factor = min(OVERSHOOT + BAND_GROWTH * max(0.0, band - BAND_FREE), MAX_OVERSHOOT)
+    return min(factor * target, target + AIM_SHARE * (n_points - target))
 
 
 def threshold(runmax, inner, seam_points, target, sse=None, budget=INF):
@@ -374,12 +408,14 @@ def cost_caps(plan, surplus, share_cap):
     return np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16)
 
 
-def cut_quota(runmax, surplus, sse=None, budget=INF):
+def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
     """How many vertices each region removes: the cheapest of the regions' recorded costs
-    (their running maxima), ties by region, ``surplus`` at most (None: no count) and, with a
-    ``budget``, as many as the squared error they add (``sse``, :func:`running_sse` of each
-    region) fits in: one threshold across the regions, as across the blocks, so each region's
-    count is a prefix of its own sequence.  Returns the counts and the squared error they add."""
+    (their running maxima), ties by region, none above ``limit`` (:func:`quota_limit`),
+    ``surplus`` at most (None: no count) and, with a ``budget``, as many as the squared error
+    they add (``sse``, :func:`running_sse` of each region) fits in: one threshold across the
+    regions, as across the blocks, so each region's count is a prefix of its own sequence.
+    Returns the counts and the squared error they add."""
+    runmax = [r[:int(np.searchsorted(r, limit, side="right"))] for r in runmax]  # nondecreasing: a prefix
     value = np.concatenate(list(runmax) + [np.zeros(0)])
     region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
     take = np.lexsort((region, value))[:surplus]
@@ -390,6 +426,19 @@ def cut_quota(runmax, surplus, sse=None, budget=INF):
             take = take[:int(np.searchsorted(np.cumsum(add) > budget, True))]  # the prefix within the budget
         spent = float(add[:len(take)].sum())
     return np.bincount(region[take], minlength=len(runmax)), spent
+
+
+def quota_limit(runmax, surplus, share):
+    """The cost up to which the quota passes before the last one remove vertices, from the
+    first quota pass's recorded costs (``runmax``, each region's running maxima): the
+    ``ceil(share * surplus)``-th cheapest of them, ``share`` the part of the mesh's vertices
+    that its regions free.  Where costs are alike across the grid, that is the cost at which
+    the passes together remove the ``surplus``, each from its own grid's free vertices, so that
+    no grid takes the count alone; the last quota pass takes what is left, cheapest first.
+    Inf where the pass recorded fewer (every pass may then take its cheapest)."""
+    k = int(np.ceil(float(share) * int(surplus)))
+    value = np.sort(np.concatenate(list(runmax) + [np.zeros(0)]))
+    return float(value[k - 1]) if 0 < k <= len(value) else INF
 
 
 def merge_pass(T, owner, isv, plan, results):
@@ -469,7 +518,7 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
             inner.append(n_inner)
             recorded.append(seq)
             sse.append(e)
-    tau = threshold(runmax, inner, N - sum(inner), None if target is None else target * OVERSHOOT, sse, budget)
+    tau = threshold(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse, budget)
 
     # pass 2: every block to tau (the prefix of its sequence, replayed)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
@@ -490,20 +539,25 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
     stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
 
     # the seams, region by region (every vertex a candidate, down to tau); then the quota
-    # passes: the vertices over the target, or the budget left, the cheapest across the regions
+    # passes: the vertices over the target, or the budget left, the cheapest across the regions,
+    # with a count none above one cost (quota_limit, from the first of them); then what they left
     cand = isv.copy()
+    limit = None
     for kind, offset in passes(int(block)):
         if kind == "quota" and "after_seams" not in stats:
             stats["after_seams"] = int(isv.sum())
-        if kind == "quota" and not costed:
+        if kind != "seams" and not costed:
             break
         c = cand if kind == "seams" else isv.copy()
         surplus = None if target is None else int(isv.sum()) - target  # never below the count
-        if not pass_runs(c, surplus, budget - spent):
+        if not pass_runs(c, surplus, budget - spent, kind):
             continue
+        limited = kind == "quota" and surplus is not None
         T, owner, isv, left, st = _region_pass(shape, T, owner, isv, c, offset, REGION * int(block),
                                                tau if kind == "seams" else INF, surplus, tol_inf, threads,
-                                               costed=costed, budget=budget - spent)
+                                               costed=costed, budget=budget - spent, limit=limit if limited else INF)
+        if limited:
+            limit = st["limit"]
         spent += st["sse"]
         if kind == "seams":
             cand = left
@@ -554,20 +608,23 @@ def _block_mesh(i):
                       tau=_SHARED["tau"], tol_inf=_SHARED["tol_inf"], recorded=None if rec is None else rec[i])
 
 
-def pass_runs(cand, surplus, left):
-    """Whether a pass after the blocks runs: some vertex is a candidate, a count (``surplus``
-    vertices over it; None: no count) is not yet met, and squared error is ``left`` to spend."""
-    return bool(cand.any()) and (surplus is None or surplus > 0) and left >= 0
+def pass_runs(cand, surplus, left, kind="seams"):
+    """Whether a pass (of ``kind``) after the blocks runs: some vertex is a candidate, a count
+    (``surplus`` vertices over it; None: no count) is not yet met, squared error is ``left``
+    to spend and, for a ``"rest"`` pass, there is a count."""
+    return (bool(cand.any()) and (surplus is None or surplus > 0) and left >= 0
+            and (kind != "rest" or surplus is not None))
 
 
 def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1, *, costed,
-                 budget=INF):
+                 budget=INF, limit=INF):
     """One pass over the regions of edge ``size`` cut at ``offset + k size``
     (:func:`pass_plan`), each decimated down to ``tau`` and, when ``costed`` (a ``surplus``
     vertices over the count, or a ``budget`` of squared error), the regions together by at
     most that many vertices and that error, the cheapest (:func:`cut_quota`): returns the new
     mesh, owners, vertex flags, the candidates left (not free in any region of this grid) and
-    the pass's counts (``sse``: the squared error it may have added)."""
+    the pass's counts (``sse``: the squared error it may have added; ``limit``: the cost above
+    which its quota took nothing, :func:`quota_limit` of its own costs where ``limit`` is None)."""
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
@@ -577,7 +634,10 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     if costed:
         sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
         recorded = list(_map(_region_costs, runs, threads))
-        sh["quota"], spent = cut_quota([r for r, _, _ in recorded], surplus, [e for _, e, _ in recorded], budget)
+        runmax = [r for r, _, _ in recorded]
+        if limit is None:
+            limit = quota_limit(runmax, surplus, plan["nfree"].sum() / max(int(isv.sum()), 1))
+        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _ in recorded], budget, limit)
         whole = {k: res for k, (r, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
         del recorded
     todo = [k for k in runs if k not in whole]
@@ -585,7 +645,8 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, (whole[k] if k in whole else done[k] for k in runs))
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
-                                            "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent}
+                                            "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent,
+                                            "limit": INF if limit is None else limit}
 
 
 def _region(k):
@@ -623,14 +684,13 @@ def quality_note(n_points, target, block):
     """What a run in blocks of ``block`` intervals to ``target`` of ``n_points`` points (None: no
     count) should tell its user: where a count's run in blocks was measured to lose against one
     piece (blocks under :data:`FAITHFUL_BLOCK`, or fewer than :data:`FAITHFUL_FRACTION` of the
-    points: the region passes reach the count before they have freed every seam, or the last
-    quota passes take it from the few vertices one grid of regions frees), a one-line note;
-    None elsewhere."""
+    points: the blocks cannot come near the count, and the seam passes reach it before they
+    have freed every seam), a one-line note; None elsewhere."""
     if target is None or (int(block) >= FAITHFUL_BLOCK and target >= FAITHFUL_FRACTION * n_points):
         return None
     return (f"decimate in blocks of {int(block)} to {100 * target / n_points:.3g} % of the points: below "
-            f"{100 * FAITHFUL_FRACTION:g} % or in blocks under {FAITHFUL_BLOCK}, runs in blocks were measured at up to "
-            f"3x one piece's E_RMS (docs/methods.md); use larger blocks, or one piece where it fits")
+            f"{100 * FAITHFUL_FRACTION:g} % or in blocks under {FAITHFUL_BLOCK}, runs in blocks were measured above "
+            f"one piece's E_RMS (docs/methods.md); use larger blocks, or one piece where it fits")
 
 
 def point_weights(shape, tets, ptet):
