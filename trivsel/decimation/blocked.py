@@ -10,7 +10,8 @@ into blocks that share their faces (the *seams*)::
              collapses in the order made, each with its cost)
     cut      one cost threshold tau for all the blocks, from the sequences' running
              maxima: the blocks' points left at tau, and the seams' at the blocks'
-             density, come to about twice the count asked for (``aim``)
+             density, come to the cut's aim: 1.2 times the count asked for, more
+             where the seams are wide against the count (``aim``)
     blocks   every block's recorded collapses replayed up to its first that costs more
              than tau (no cost computed again): the prefix of its recorded sequence
              (without a count, tau is inf and every block runs to ``tol_inf``)
@@ -64,11 +65,10 @@ import numpy as np
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
-__all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "threshold", "index_type",
-           "sse_budget", "running_sse", "sse_at", "aim",
-           "assemble", "pass_plan", "region_input", "region_decimate", "cost_caps", "cut_quota", "quota_limit",
-           "merge_pass",
-           "decimate_in_blocks", "pass_runs", "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
+__all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
+           "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
+           "region_decimate", "cost_caps", "cut_quota", "quota_limit", "merge_pass", "decimate_in_blocks", "pass_runs",
+           "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
 REGION = 2
@@ -429,13 +429,13 @@ def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
 
 
 def quota_limit(runmax, surplus, share):
-    """The cost up to which the quota passes before the last one remove vertices, from the
-    first quota pass's recorded costs (``runmax``, each region's running maxima): the
-    ``ceil(share * surplus)``-th cheapest of them, ``share`` the part of the mesh's vertices
-    that its regions free.  Where costs are alike across the grid, that is the cost at which
-    the passes together remove the ``surplus``, each from its own grid's free vertices, so that
-    no grid takes the count alone; the last quota pass takes what is left, cheapest first.
-    Inf where the pass recorded fewer (every pass may then take its cheapest)."""
+    """The cost up to which the quota passes remove vertices, from the first quota pass's
+    recorded costs (``runmax``, each region's running maxima): the ``ceil(share * surplus)``-th
+    cheapest of them, ``share`` the part of the mesh's vertices that its regions free.  Where
+    costs are alike across the grid, that is the cost at which the passes together remove the
+    ``surplus``, each from its own grid's free vertices, so that no grid takes the count alone;
+    the rest passes take what is left, cheapest first.  Inf where the pass recorded fewer
+    (every pass may then take its cheapest)."""
     k = int(np.ceil(float(share) * int(surplus)))
     value = np.sort(np.concatenate(list(runmax) + [np.zeros(0)]))
     return float(value[k - 1]) if 0 < k <= len(value) else INF
