@@ -262,8 +262,9 @@ def _spent(out, st, p):
 
 
 def _limit(out, st, p):
-    """The quota passes' cost limit as the passes before ``p`` left it (:func:`trivsel.decimation.blocked.quota_limit`):
-    nan while no quota pass has derived it (and in a run begun by a version that had none)."""
+    """The quota passes' cost limit as the passes before ``p`` left it
+    (:func:`trivsel.decimation.blocked.pass_limit`): nan in the files while no quota pass has
+    derived it (and in a run begun by a version that had none)."""
     if p == 0 or not st.costed:
         return float("nan")
     return float(_load(out / "passes" / str(p - 1) / "quota.npz").get("limit", float("nan")))
@@ -341,11 +342,10 @@ def _step(out, st, p):
     tau, _ = _tau(out)
     tau_p = tau if kind == "seams" else INF
     caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and st.costed else None
-    share = float(plan["nfree"].sum()) / max(int(isv.sum()), 1)  # of the vertices, those its regions free
     _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
                   region=plan["region"], left=plan["left"], ran=np.bool_(run),
                   surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p),
-                  spent=np.float64(spent), budget=np.float64(left), share=np.float64(share),
+                  spent=np.float64(spent), budget=np.float64(left), share=np.float64(B.free_share(plan, isv)),
                   limit=np.float64(_limit(out, st, p)))
     per = int(dims[1] * dims[2])
     for slab in st.region_slabs(p):
@@ -394,17 +394,16 @@ def _quota(out, st, p):
     regions = [int(r) for r in plan["region"]]
     q, added = np.zeros(0, np.int64), 0.0
     limit = float(plan.get("limit", float("nan")))
-    surplus = None if plan["surplus"] < 0 else int(plan["surplus"])
+    limit = None if np.isnan(limit) else limit  # none derived yet
     if plan["ran"]:
         sses = [sse.get(r, np.zeros(len(runmax[r]))) for r in regions]  # none in a run begun before they were
         costs = [runmax[r] for r in regions]
-        # with a count, the quota passes take nothing above the limit the first of them derives
-        limited = st.passes[p][0] == "quota" and surplus is not None
-        if limited and np.isnan(limit):
-            limit = B.quota_limit(costs, surplus, float(plan.get("share", 1.0)))
-        q, added = B.cut_quota(costs, surplus, sses, float(plan.get("budget", INF)), limit if limited else INF)
+        surplus = None if plan["surplus"] < 0 else int(plan["surplus"])
+        cut, limit = B.pass_limit(st.passes[p][0], surplus, limit, costs, float(plan.get("share", 1.0)))
+        q, added = B.cut_quota(costs, surplus, sses, float(plan.get("budget", INF)), cut)
     _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
-                  spent=np.float64(float(plan.get("spent", 0.0)) + added), limit=np.float64(limit))
+                  spent=np.float64(float(plan.get("spent", 0.0)) + added),
+                  limit=np.float64(float("nan") if limit is None else limit))
 
 
 def _region_apply(out, st, p, slab):

@@ -67,7 +67,8 @@ from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
-           "region_decimate", "cost_caps", "cut_quota", "quota_limit", "merge_pass", "decimate_in_blocks", "pass_runs",
+           "region_decimate", "cost_caps", "cut_quota", "quota_limit", "free_share", "pass_limit", "merge_pass",
+           "decimate_in_blocks", "pass_runs",
            "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
 
 #: The edge of a region of the passes after the blocks, in blocks
@@ -441,6 +442,24 @@ def quota_limit(runmax, surplus, share):
     return float(value[k - 1]) if 0 < k <= len(value) else INF
 
 
+def free_share(plan, isv):
+    """The part of the mesh's vertices (``isv``) that the regions of a pass (:func:`pass_plan`) free."""
+    return float(plan["nfree"].sum()) / max(int(isv.sum()), 1)
+
+
+def pass_limit(kind, surplus, limit, runmax, share):
+    """``(cut, kept)``: the cost limit of a pass's quota cut (:func:`cut_quota`) and the one the
+    passes after it inherit.  With a count (``surplus`` not None) a ``"quota"`` pass cuts at the
+    inherited ``limit``, or, while none is (None), derives it from its own recorded costs
+    (``runmax``) and its regions' ``share`` of the vertices (:func:`quota_limit`, :func:`free_share`);
+    every other pass cuts without one and hands the inherited limit on."""
+    if kind != "quota" or surplus is None:
+        return INF, limit
+    if limit is None:
+        limit = quota_limit(runmax, surplus, share)
+    return limit, limit
+
+
 def merge_pass(T, owner, isv, plan, results):
     """The mesh after a pass: every region's tetrahedra replaced by its new ones
     (``results[k]``, :func:`region_decimate`, for run ``k`` of ``plan``).  Returns ``T``,
@@ -542,7 +561,7 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
     # passes: the vertices over the target, or the budget left, the cheapest across the regions,
     # with a count none above one cost (quota_limit, from the first of them); then what they left
     cand = isv.copy()
-    limit = None
+    limit = None  # the quota passes' cost limit, once the first of them has derived it
     for kind, offset in passes(int(block)):
         if kind == "quota" and "after_seams" not in stats:
             stats["after_seams"] = int(isv.sum())
@@ -552,12 +571,10 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
         surplus = None if target is None else int(isv.sum()) - target  # never below the count
         if not pass_runs(c, surplus, budget - spent, kind):
             continue
-        limited = kind == "quota" and surplus is not None
         T, owner, isv, left, st = _region_pass(shape, T, owner, isv, c, offset, REGION * int(block),
                                                tau if kind == "seams" else INF, surplus, tol_inf, threads,
-                                               costed=costed, budget=budget - spent, limit=limit if limited else INF)
-        if limited:
-            limit = st["limit"]
+                                               costed=costed, budget=budget - spent, kind=kind, limit=limit)
+        limit = st["limit_after"]
         spent += st["sse"]
         if kind == "seams":
             cand = left
@@ -617,27 +634,27 @@ def pass_runs(cand, surplus, left, kind="seams"):
 
 
 def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf, threads=1, *, costed,
-                 budget=INF, limit=INF):
+                 budget=INF, kind="seams", limit=None):
     """One pass over the regions of edge ``size`` cut at ``offset + k size``
     (:func:`pass_plan`), each decimated down to ``tau`` and, when ``costed`` (a ``surplus``
     vertices over the count, or a ``budget`` of squared error), the regions together by at
     most that many vertices and that error, the cheapest (:func:`cut_quota`): returns the new
     mesh, owners, vertex flags, the candidates left (not free in any region of this grid) and
     the pass's counts (``sse``: the squared error it may have added; ``limit``: the cost above
-    which its quota took nothing, :func:`quota_limit` of its own costs where ``limit`` is None)."""
+    which its quota took nothing, and ``limit_after``: the quota passes' limit after it, both
+    :func:`pass_limit` of the pass ``kind`` and the inherited ``limit``)."""
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
                                   budget=budget)
     whole = {}  # the regions whose quota is every collapse they recorded: that run's result
-    spent = 0.0
+    spent, cut = 0.0, INF
     if costed:
         sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
         recorded = list(_map(_region_costs, runs, threads))
         runmax = [r for r, _, _ in recorded]
-        if limit is None:
-            limit = quota_limit(runmax, surplus, plan["nfree"].sum() / max(int(isv.sum()), 1))
-        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _ in recorded], budget, limit)
+        cut, limit = pass_limit(kind, surplus, limit, runmax, free_share(plan, isv))
+        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _ in recorded], budget, cut)
         whole = {k: res for k, (r, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
         del recorded
     todo = [k for k in runs if k not in whole]
@@ -646,7 +663,7 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
                                             "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent,
-                                            "limit": INF if limit is None else limit}
+                                            "limit": cut, "limit_after": limit}
 
 
 def _region(k):

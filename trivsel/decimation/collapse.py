@@ -118,17 +118,16 @@ def _value_moved(P, flt, f, Q, G, sc, i, w, p):
               b
     """
     s = sc[i] & 3
-    if flt:
-        return _value_in(P, flt, f, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
-                         w if s == 3 else Q[i, 3], p)
-    ls = G[i, 0] * P[p, 0] + G[i, 1] * P[p, 1] + G[i, 2] * P[p, 2] + G[i, 3]
-    if ls < 0:
-        return False, 0.0
-    D = G[i, 0] * P[w, 0] + G[i, 1] * P[w, 1] + G[i, 2] * P[w, 2] + G[i, 3]
     q0 = w if s == 0 else Q[i, 0]
     q1 = w if s == 1 else Q[i, 1]
     q2 = w if s == 2 else Q[i, 2]
     q3 = w if s == 3 else Q[i, 3]
+    if flt:
+        return _value_in(P, flt, f, q0, q1, q2, q3, p)
+    ls = G[i, 0] * P[p, 0] + G[i, 1] * P[p, 1] + G[i, 2] * P[p, 2] + G[i, 3]
+    if ls < 0:
+        return False, 0.0
+    D = G[i, 0] * P[w, 0] + G[i, 1] * P[w, 1] + G[i, 2] * P[w, 2] + G[i, 3]
     # the first two slots other than s by orientation, the last other one by difference
     ja = 1 if s == 0 else 0
     jb = 2 if s <= 1 else 1
