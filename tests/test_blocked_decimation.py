@@ -125,8 +125,8 @@ def test_an_e_rms_tolerance_holds_across_the_seams_with_about_the_count_of_one_p
 @pytest.mark.parametrize("first", ["count", "tol_rms"])
 def test_a_count_and_an_e_rms_tolerance_stop_at_whichever_comes_first(first):
     vol = smooth_volume((30, 30, 30), seed=5)
-    if first == "count":  # ten times the E_RMS of the run to the count alone (at 2-4 times the budget
-        tol = 10 * rms(residuals(vol, decimate_in_blocks(vol, 10, count=900)))  # still stops it: docs/notes)
+    if first == "count":  # 1.2 times the E_RMS of the run to the count alone: the budget then holds the count
+        tol = 1.2 * rms(residuals(vol, decimate_in_blocks(vol, 10, count=900)))
     else:  # half one piece's E_RMS at the count: out of reach at that count
         tol = rms(reduce_by_collapse(grid_from_array(vol), [900])[0][-1].residuals) / 2
     out = decimate_in_blocks(vol, 10, count=900, tol_rms=tol)
@@ -151,6 +151,18 @@ def test_the_quota_passes_share_a_count_by_one_cost():
     assert counts.tolist() == [2, 3, 0]
     assert cut_quota(runmax, 4, limit=3.0)[0].tolist() == [2, 2, 0]  # the surplus first, ties by region
     assert cut_quota(runmax, 10)[0].tolist() == [4, 3, 0]
+
+
+def test_a_quota_cut_below_its_limit_counts_the_squared_error_of_what_it_takes():
+    """With a cost limit the regions' sequences are cut to their prefixes at it: the squared error
+    counted is that of the collapses taken, region by region, whatever the sequences beyond the limit
+    hold, and the budget stops the cut on it."""
+    runmax = [np.array([1.0, 2.0, 5.0, 9.0]), np.array([0.5, 3.0, 3.0, 4.0])]
+    sse = [np.array([1.0, 3.0, 100.0, 1000.0]), np.array([0.5, 2.0, 4.0, 10.0])]
+    counts, spent = cut_quota(runmax, 10, sse, limit=3.0)
+    assert counts.tolist() == [2, 3] and spent == 3.0 + 4.0
+    counts, spent = cut_quota(runmax, 10, sse, budget=4.9, limit=3.0)  # 0.5, 1, 2 fit (3.5); 3 (1.5 more) does not
+    assert counts.tolist() == [2, 1] and spent == 3.0 + 0.5
 
 
 def test_a_small_count_in_small_blocks_stays_near_one_piece():

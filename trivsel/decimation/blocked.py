@@ -417,6 +417,8 @@ def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
     regions, as across the blocks, so each region's count is a prefix of its own sequence.
     Returns the counts and the squared error they add."""
     runmax = [r[:int(np.searchsorted(r, limit, side="right"))] for r in runmax]  # nondecreasing: a prefix
+    if sse is not None:  # the squared errors of the same prefixes, so that both index one concatenation
+        sse = [s[:len(r)] for s, r in zip(sse, runmax)]
     value = np.concatenate(list(runmax) + [np.zeros(0)])
     region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
     take = np.lexsort((region, value))[:surplus]
