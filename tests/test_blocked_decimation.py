@@ -11,7 +11,8 @@ import pytest
 from trivsel.blocks import check_tetrahedra
 from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
-from trivsel.decimation.blocked import block_cuts, cut_quota, decimate_in_blocks, quality_note, quota_limit
+from trivsel.decimation.blocked import (SSE_SHARE, block_cuts, cut_quota, decimate_in_blocks, quality_note, quota_limit,
+                                        short_blocks, threshold)
 from trivsel.selection import count_for_fraction
 
 
@@ -163,6 +164,37 @@ def test_a_quota_cut_below_its_limit_counts_the_squared_error_of_what_it_takes()
     assert counts.tolist() == [2, 3] and spent == 3.0 + 4.0
     counts, spent = cut_quota(runmax, 10, sse, budget=4.9, limit=3.0)  # 0.5, 1, 2 fit (3.5); 3 (1.5 more) does not
     assert counts.tolist() == [2, 1] and spent == 3.0 + 0.5
+
+
+def test_records_cut_at_a_floor_give_the_threshold_of_whole_records():
+    """threshold's ``decided``: the largest cost it compared (inf where it needed every collapse);
+    short_blocks: the records that stop at their floor at or below it, to record again."""
+    runmax = [np.array([1.0, 2.0, 3.0]), np.array([1.5, 4.0])]
+    inner = [10, 10]
+    assert threshold(runmax, inner, 0, 17) == (2.0, 2.0)  # 1, 1.5, 2 removed: 17 left
+    assert threshold(runmax, inner, 0, 14) == (4.0, np.inf)  # out of reach: every collapse
+    assert short_blocks(runmax, [True, True], 2.0) == []
+    assert short_blocks(runmax, [True, False], 3.0) == [0] and short_blocks(runmax, [False, True], 4.0) == [1]
+    sse = [np.array([1.0, 2.0, 9.0]), np.array([0.5, 8.0])]  # the budget binds first: decided by 3.0
+    assert threshold(runmax, inner, 0, 15, sse, budget=4.0 / SSE_SHARE) == (2.0, 3.0)
+
+
+@pytest.mark.parametrize("floor", [0.0, 1.0])
+def test_blocks_recorded_to_a_floor_give_the_mesh_of_whole_records(floor, monkeypatch):
+    """Pass 1 records each block to RECORD_FLOOR times its share of the count; the blocks whose
+    record ends below a cost the cut compared are recorded again to their end.  At the floor of
+    the whole share (blocks recorded again) and at none, the mesh of the default floor."""
+    from trivsel.decimation import blocked
+
+    vol = smooth_volume((30, 30, 30), seed=5)
+    ref = decimate_in_blocks(vol, 10, count=900)
+    again = []
+    short = blocked.short_blocks
+    monkeypatch.setattr(blocked, "short_blocks", lambda *a: again.append(short(*a)) or again[-1])
+    monkeypatch.setattr(blocked, "RECORD_FLOOR", floor)
+    out = decimate_in_blocks(vol, 10, count=900)
+    assert all(np.array_equal(ref[k], out[k]) for k in ("vertices", "tets", "ptet"))
+    assert (len(again[0]) > 0) == (floor > 0) and again[-1] == []
 
 
 def test_a_small_count_in_small_blocks_stays_near_one_piece():

@@ -186,6 +186,32 @@ def test_files_of_a_run_begun_before_errors_were_recorded_read_as_no_error_spent
     assert D._spent(tmp_path, st, 0) == 0.0 and D._spent(tmp_path, st, 1) == 0.0
 
 
+def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_path, capsys, monkeypatch):
+    """The costs jobs record each block down to a floor under its share of the count; where the
+    cut compares a cost past a record's end, the cut job records that block again to its end
+    (``costs/whole.npz``) and the mesh jobs replay it: the threshold and the blocks' meshes of
+    whole records.  Here the floor is raised to the whole share, so that blocks are recorded
+    again, and the stages run in this process."""
+    from trivsel.blocks import decimate as D
+
+    out = tmp_path / "run"
+    assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
+                 "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
+    capsys.readouterr()
+    tau = json.loads((out / "tau.json").read_text())
+    meshes = {p.name: D._load(p) for p in (out / "meshes").glob("*.npz")}
+    (out / "tau.json").unlink()
+    monkeypatch.setattr(D.B, "RECORD_FLOOR", 1.0)
+    for kind in ("costs", "cut", "mesh"):
+        for item in ([str(s) for s in range(3)] if kind != "cut" else [""]):
+            D.run_job(out, kind, item)
+    assert len(D._load(out / "costs" / "whole.npz")) > 0  # some blocks were recorded again
+    assert json.loads((out / "tau.json").read_text()) == tau
+    for name, z in meshes.items():
+        again = D._load(out / "meshes" / name)
+        assert z.keys() == again.keys() and all(np.array_equal(z[k], again[k]) for k in z)
+
+
 @pytest.mark.slurm
 def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     """Every job through sbatch with the unchanged workflow profile, each COMPLETED in sacct, and

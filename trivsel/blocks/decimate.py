@@ -10,6 +10,8 @@ one stage hands the next is a file in the run's folder::
                        maxima) and the squared error they add, and its points off the seams
     tau.json           the cost threshold cut across every block's sequence, and the
                        squared error the blocks add up to it
+    costs/whole.npz    the blocks whose record stopped short of a cost the cut compared,
+                       recorded again to their end by the cut job (most runs: none)
     meshes/X.npz       pass 2, each block of slab X down to the threshold (its recorded
                        collapses replayed): its tetrahedra, the points inside them and their rows
     passes/P/state.npz the whole mesh before pass P: tetrahedra, each point's tetrahedron,
@@ -217,16 +219,25 @@ def _costs(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     res = {}
     for i, lo, hi in st.blocks_of(slab):
-        r, n_inner, (removed, into), sse = B.block_costs(_read_box(vol, lo, hi), lo, shape, st.seam_axes(),
-                                                         fraction=st.fraction(), tol_inf=st.cfg.get("tol_inf"),
-                                                         tol_rms=st.cfg.get("tol_rms"))
-        res.update({f"runmax_{i}": r, f"inner_{i}": np.int64(n_inner), f"removed_{i}": removed, f"into_{i}": into,
-                    f"sse_{i}": sse})
+        res.update(_block_record(vol, st, i, lo, hi, B.RECORD_FLOOR))
     _atomic_savez(out / "costs" / f"{slab}.npz", **res)
 
 
+def _block_record(vol, st, i, lo, hi, floor):
+    """Pass 1 on block ``i`` (:func:`trivsel.decimation.blocked.block_costs`) as the arrays of a
+    costs file."""
+    r, n_inner, (removed, into), sse, short = B.block_costs(
+        _read_box(vol, lo, hi), lo, st.plan.shape, st.seam_axes(), fraction=st.fraction(),
+        tol_inf=st.cfg.get("tol_inf"), tol_rms=st.cfg.get("tol_rms"), floor=floor)
+    return {f"runmax_{i}": r, f"inner_{i}": np.int64(n_inner), f"removed_{i}": removed, f"into_{i}": into,
+            f"sse_{i}": sse, f"short_{i}": np.bool_(short)}
+
+
 def _cut(out, st):
-    runmax, inner, sse = [], [], []
+    """The threshold across the blocks' records; the blocks whose record stopped short of a
+    cost it compared are recorded again to their end here, one at a time, into
+    ``costs/whole.npz`` (which the mesh jobs read before their slab's file)."""
+    runmax, inner, sse, short = [], [], [], []
     N = st.plan.n_points()
     target = st.target()
     if st.costed:
@@ -237,7 +248,22 @@ def _cut(out, st):
                     inner.append(int(z[f"inner_{i}"]))
                     # a run started before the errors were recorded has no budget: zeros stand in
                     sse.append(z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(runmax[-1])))
-    tau = B.threshold(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse, st.budget())
+                    short.append(bool(z[f"short_{i}"]) if f"short_{i}" in z.files else False)
+    whole = {}
+    while True:  # once more at most: the blocks recorded again have whole records
+        tau, decided = B.threshold(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse,
+                                   st.budget())
+        again = B.short_blocks(runmax, short, decided)
+        if not again:
+            break
+        vol = _open(st.cfg)
+        bounds = {i: (lo, hi) for slab in st.slabs for i, lo, hi in st.blocks_of(slab)}
+        for i in again:
+            rec = _block_record(vol, st, i, *bounds[i], 0.0)
+            whole.update(rec)
+            runmax[i], sse[i], short[i] = rec[f"runmax_{i}"], rec[f"sse_{i}"], False
+    if st.costed:
+        _atomic_savez(out / "costs" / "whole.npz", **whole)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": B.sse_at(sse, counts) if counts else 0.0}))
@@ -273,7 +299,11 @@ def _limit(out, st, p):
 def _mesh(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     tau, d = _tau(out)
-    recorded = _load(out / "costs" / f"{slab}.npz") if st.costed else None  # pass 1's collapses, replayed
+    recorded = None
+    if st.costed:  # pass 1's collapses, replayed: the blocks the cut recorded again from its file
+        recorded = _load(out / "costs" / f"{slab}.npz")
+        if (out / "costs" / "whole.npz").exists():  # (none in a run begun before the cut wrote it)
+            recorded.update(_load(out / "costs" / "whole.npz"))
     res = {}
     for i, lo, hi in st.blocks_of(slab):
         rec = None
@@ -563,7 +593,9 @@ def job_resources(cfg, plan, kind):
         secs = 60 + 1e-5 * N
     elif kind == "kernels":
         mem, secs = 2 * JOB_BASE_BYTES, 600
-    else:  # cut, quota
+    elif kind == "cut":  # the blocks' costs, and a block recorded again
+        mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
+    else:  # quota
         mem, secs = JOB_BASE_BYTES + 16 * N, 60
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
 

@@ -95,6 +95,7 @@ rule cut:
         [f"costs/{s}.npz" for s in ST.slabs] if ST.costed else "kernels.done",
     output:
         "tau.json",
+        temp("costs/whole.npz") if ST.costed else [],
     log:
         "logs/cut.log",
     benchmark:
@@ -110,7 +111,7 @@ rule cut:
 rule mesh:
     input:
         "tau.json",
-        "costs/{slab}.npz" if ST.costed else [],
+        ["costs/{slab}.npz", "costs/whole.npz"] if ST.costed else [],
     output:
         temp("meshes/{slab}.npz"),
     log:

@@ -7,7 +7,9 @@ into blocks that share their faces (the *seams*)::
 
     costs    every block is decimated on its own, its seam points locked, and its
              sequence of collapse costs recorded (Hoppe's progressive meshes: the
-             collapses in the order made, each with its cost)
+             collapses in the order made, each with its cost), down to a floor under
+             its share of the count (``RECORD_FLOOR``; again to its end where the cut
+             compares a cost past the record's: ``short_blocks``)
     cut      one cost threshold tau for all the blocks, from the sequences' running
              maxima: the blocks' points left at tau, and the seams' at the blocks'
              density, come to the cut's aim: 1.2 times the count asked for, more
@@ -66,6 +68,7 @@ from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
+           "short_blocks",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
            "region_decimate", "cost_caps", "cut_quota", "quota_limit", "free_share", "pass_limit", "merge_pass",
            "decimate_in_blocks", "pass_runs",
@@ -97,6 +100,12 @@ BAND_GROWTH, BAND_FREE, MAX_OVERSHOOT, AIM_SHARE = 2.0, 0.3, 2.0, 0.2
 #: with m vertices.  A larger share runs the seam passes out of budget before their last grid has freed the
 #: seams, a smaller one leaves the quota passes more than they spend well (measured: docs/notes)
 SSE_SHARE = OVERSHOOT ** (-4.0 / 3.0)
+#: Pass 1 records a block's collapses down to its seam points and this part of its share of the count, and
+#: those of cost 0 after it, not to its last: the cut needs each block's costs up to the threshold only, and
+#: the collapses far below a block's share cost far above it (on a smooth volume, a third of pass 1: measured,
+#: docs/notes).  A block whose record ends at or below a cost the cut compared is recorded again to its end
+#: (:func:`short_blocks`), so the threshold, and the mesh, are those of whole records
+RECORD_FLOOR = 0.25
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
 #: A count's run in blocks keeps about one piece's errors down to this fraction of the points in blocks of
@@ -167,20 +176,27 @@ def _on_seam(g, seam_axes):
     return on
 
 
-def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms=None):
+def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms=None, floor=0.0):
     """The block decimated lazily down to its seam points and twice its share of the target
     (``fraction`` of its points off the seams) and, with ``tol_rms``, while its E_RMS is below
     ``tol_rms / EXACT_WITHIN``, then with exact costs (as
     :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until the first
-    collapse that costs more than ``key_max``: the same sequence every time."""
+    collapse that costs more than ``key_max``: the same sequence every time.  With a ``floor``
+    (and a count), the exact run stops at its seam points and ``floor`` times its share, and
+    goes on only through collapses of cost 0: a prefix of that sequence.  Returns the
+    decimation, the points' global indices, the seam flags and whether the floor cut the
+    sequence short (a collapse of a positive cost was left)."""
     S, gid, seam = _block_state(values, lo, shape, seam_axes)
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
     share = (~seam).sum() * fraction  # its locked seam points stay
     near_sse = INF if tol_rms is None else float(tol_rms) ** 2 * len(gid) / EXACT_WITHIN ** 2
-    if dec.run(int(seam.sum() + EXACT_WITHIN * share), sse_max=near_sse, key_max=key_max) != 1:
-        dec.lazy = False
-        dec.run(0, key_max=key_max)
-    return dec, gid, seam
+    if dec.run(int(seam.sum() + EXACT_WITHIN * share), sse_max=near_sse, key_max=key_max) == 1:
+        return dec, gid, seam, False
+    dec.lazy = False
+    stop = int(seam.sum() + floor * share) if floor > 0 and share > 0 else 0
+    if dec.run(stop, key_max=key_max) != 0 or stop == 0:
+        return dec, gid, seam, False
+    return dec, gid, seam, dec.run(0, key_max=min(key_max, 0.0)) == 2
 
 
 def sse_budget(tol_rms, n_points):
@@ -202,17 +218,19 @@ def sse_at(sse, counts):
     return float(sum(s[c - 1] for s, c in zip(sse, counts) if c > 0))
 
 
-def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None, tol_rms=None):
+def block_costs(values, lo, shape, seam_axes, *, fraction, tol_inf=None, tol_rms=None, floor=RECORD_FLOOR):
     """Pass 1 on one block: the running maxima of its collapse costs in the order made, its
     number of points off the seams, the collapses themselves (the points removed and the
-    vertices they moved onto, block indices) for pass 2 to replay, and the squared error they
-    add (:func:`running_sse`; a block starts at error 0, every point a vertex)."""
-    dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF, tol_rms)
+    vertices they moved onto, block indices) for pass 2 to replay, the squared error they
+    add (:func:`running_sse`; a block starts at error 0, every point a vertex), and whether
+    the record stops at ``floor`` times the block's share of the count (:data:`RECORD_FLOOR`;
+    0: every collapse recorded) with collapses of a positive cost left."""
+    dec, gid, seam, short = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, INF, tol_rms, floor)
     removed = dec.removed()
     keys = dec.S.hkey[removed]
     runmax = np.maximum.accumulate(keys) if len(keys) else keys.copy()
     return (runmax, int((~seam).sum()), (removed.astype(np.int32), dec.into().astype(np.int32)),
-            running_sse(dec.S.hsse[removed]))
+            running_sse(dec.S.hsse[removed]), short)
 
 
 def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, recorded=None):
@@ -221,7 +239,7 @@ def block_mesh(values, lo, shape, seam_axes, *, fraction, tau, tol_inf=None, rec
     ``recorded`` (pass 1's collapses up to ``tau``: :func:`block_costs`' third item, cut to
     its count at ``tau``), those collapses are replayed, not costed again: the same mesh."""
     if recorded is None:
-        dec, gid, seam = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, tau)
+        dec, gid, seam, _ = _block_run(values, lo, shape, seam_axes, fraction, tol_inf, tau)
     else:
         S, gid, seam = _block_state(values, lo, shape, seam_axes)
         dec = Decimation(None, None, None, tol_inf=tol_inf, state=S, queue=False)
@@ -251,13 +269,17 @@ def threshold(runmax, inner, seam_points, target, sse=None, budget=INF):
     maxima cut at tau), plus the seams' points at the blocks' density, come nearest to
     ``target``; with a ``budget`` (:func:`sse_budget`), at most the tau at which the squared
     error the blocks add (``sse``, :func:`running_sse` of each), projected over the seams at
-    the blocks' density, is ``SSE_SHARE`` of it.  Inf with neither."""
+    the blocks' density, is ``SSE_SHARE`` of it.  Inf with neither.
+
+    Returns ``(tau, decided)``: ``decided`` is the largest cost whose counts the choice
+    compared (inf where it needed every collapse), so that sequences recorded only up to a
+    cost above it (:func:`short_blocks`) give the same tau as whole ones."""
     if target is None and budget == INF:
-        return INF
+        return INF, INF
     total = sum(inner)
     cand = np.unique(np.concatenate([r for r in runmax if len(r)] or [np.zeros(0)]))
     if not len(cand):
-        return INF
+        return INF, INF
 
     def counts(t):
         return [int(np.searchsorted(r, t, side="right")) for r in runmax]
@@ -276,14 +298,27 @@ def threshold(runmax, inner, seam_points, target, sse=None, budget=INF):
                 lo = mid + 1
         return lo
 
-    tau = INF
+    def at(k):  # the k-th candidate; inf past the last
+        return float(cand[k]) if k < len(cand) else INF
+
+    tau = decided = INF
     if target is not None:  # left() falls as tau grows: the smallest tau with left <= target, or every collapse
-        tau = float(cand[min(first(lambda t: left(t) <= target), len(cand) - 1)])
+        k = first(lambda t: left(t) <= target)
+        tau, decided = float(cand[min(k, len(cand) - 1)]), at(k)
     if budget < INF:  # the projected error grows with tau: the largest tau within the share
         scale = (total + seam_points) / max(total, 1)
         k = first(lambda t: sse_at(sse, counts(t)) * scale > SSE_SHARE * budget)
-        tau = min(tau, float(cand[k - 1]) if k > 0 else float(np.nextafter(cand[0], -INF)))
-    return tau
+        t = float(cand[k - 1]) if k > 0 else float(np.nextafter(cand[0], -INF))
+        if t < tau:  # the budget binds before the count: decided by the first candidate past it
+            tau, decided = t, at(k)
+    return tau, decided
+
+
+def short_blocks(runmax, short, decided):
+    """The blocks whose record (:func:`block_costs`) stopped at its floor (``short``) at or below
+    the cost ``decided`` (:func:`threshold`): recorded again to their last collapse, the cut
+    is that of whole records (every cost it compares lies below every record's end)."""
+    return [i for i, (r, s) in enumerate(zip(runmax, short)) if s and (not len(r) or r[-1] <= decided)]
 
 
 def index_type(n):
@@ -529,17 +564,25 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
 
     _SHARED.clear()
     _SHARED.update(vol=vol, bounds=bounds, seam_axes=seam_axes, tol_inf=tol_inf, tol_rms=tol_rms,
-                   fraction=0.0 if target is None else target / N)
+                   fraction=0.0 if target is None else target / N, floor=RECORD_FLOOR)
 
     # pass 1: every block's costs, cheapest first, as running maxima, and the squared error they add
-    runmax, inner, recorded, sse = [], [], [], []
+    runmax, inner, recorded, sse, short = [], [], [], [], []
     if costed:
-        for r, n_inner, seq, e in _map(_block_costs, range(len(bounds)), threads):
+        for r, n_inner, seq, e, s in _map(_block_costs, range(len(bounds)), threads):
             runmax.append(r)
             inner.append(n_inner)
             recorded.append(seq)
             sse.append(e)
-    tau = threshold(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse, budget)
+            short.append(s)
+    while True:  # once more at most: the blocks recorded again have whole records
+        tau, decided = threshold(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse, budget)
+        again = short_blocks(runmax, short, decided)
+        if not again:
+            break
+        _SHARED["floor"] = 0.0
+        for i, (r, _, seq, e, s) in zip(again, _map(_block_costs, again, threads)):
+            runmax[i], recorded[i], sse[i], short[i] = r, seq, e, s
 
     # pass 2: every block to tau (the prefix of its sequence, replayed)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
@@ -617,7 +660,7 @@ def _block_values(i):
 def _block_costs(i):
     values, lo = _block_values(i)
     return block_costs(values, lo, _SHARED["vol"].shape, _SHARED["seam_axes"], fraction=_SHARED["fraction"],
-                       tol_inf=_SHARED["tol_inf"], tol_rms=_SHARED["tol_rms"])
+                       tol_inf=_SHARED["tol_inf"], tol_rms=_SHARED["tol_rms"], floor=_SHARED["floor"])
 
 
 def _block_mesh(i):
