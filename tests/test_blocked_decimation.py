@@ -197,6 +197,27 @@ def test_blocks_recorded_to_a_floor_give_the_mesh_of_whole_records(floor, monkey
     assert (len(again[0]) > 0) == (floor > 0) and again[-1] == []
 
 
+def test_a_region_replays_its_recorded_collapses_up_to_its_quota_to_the_mesh_of_its_run(monkeypatch):
+    """Where a pass's cut takes only the first of a region's recorded collapses, they are replayed
+    (no cost computed again): the mesh of the region run again to its quota."""
+    from trivsel.decimation import blocked
+
+    vol = smooth_volume((30, 30, 30), seed=5)
+    calls = []
+    region = blocked.region_decimate
+
+    def spy(*a, recorded=None, **k):
+        calls.append(recorded is not None)
+        return region(*a, recorded=recorded, **k)
+
+    monkeypatch.setattr(blocked, "region_decimate", spy)
+    out = decimate_in_blocks(vol, 10, count=900)
+    assert any(calls)  # some regions replayed
+    monkeypatch.setattr(blocked, "region_decimate", lambda *a, recorded=None, **k: region(*a, **k))
+    ran = decimate_in_blocks(vol, 10, count=900)
+    assert all(np.array_equal(out[k], ran[k]) for k in ("vertices", "tets", "ptet"))
+
+
 def test_a_small_count_in_small_blocks_stays_near_one_piece():
     """Blocks small against the tetrahedra near the stop: 900 of 27,000 points in blocks of 10.  The
     blocks' cut aims at twice the count, so the seam passes end above it, and the quota passes share

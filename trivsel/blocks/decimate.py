@@ -22,8 +22,9 @@ one stage hands the next is a file in the run's folder::
                        each region's recorded costs, and the collapses each makes: one
                        threshold across the regions, and the squared error spent so far
                        (runs with a count or tol_rms only)
-    passes/P/out/R.npz each region of slab R decimated: the points it removed, its new
-                       tetrahedra, the points inside them
+    passes/P/out/R.npz each region of slab R decimated (its recorded collapses up to its
+                       quota, replayed): the points it removed, its new tetrahedra, the
+                       points inside them
     merged/            the last step: mesh.vtu (vertices sorted by the input's point id),
                        one piece per block (pieces/, mesh.pvtu), summary.json
 
@@ -403,12 +404,12 @@ def _region_costs(out, st, p, slab):
     res = {}
     for r in regions:
         i = inp(r)
-        runmax, sse, result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]),
-                                                tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
-                                                quota=int(z[f"cap_{r}"]), costs=True,
-                                                budget=float(plan.get("budget", INF)))
+        runmax, sse, (lremoved, linto), result = B.region_decimate(
+            i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
+            quota=int(z[f"cap_{r}"]), costs=True, budget=float(plan.get("budget", INF)))
         res[f"runmax_{r}"] = runmax
         res[f"sse_{r}"] = sse
+        res[f"lremoved_{r}"], res[f"linto_{r}"] = lremoved, linto  # replayed where the quota is fewer
         res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
     _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
 
@@ -453,8 +454,12 @@ def _region_apply(out, st, p, slab):
             result = [recorded[f"{name}_{r}"] for name in RESULT]
         else:
             i = inp(r)
+            seq = None  # the first collapses it recorded, replayed (none in a run begun before they were kept)
+            if quota is not None and f"lremoved_{r}" in recorded:
+                seq = recorded[f"lremoved_{r}"], recorded[f"linto_{r}"]
             result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
-                                       tol_inf=st.cfg.get("tol_inf"), quota=None if quota is None else quota[r])
+                                       tol_inf=st.cfg.get("tol_inf"), quota=None if quota is None else quota[r],
+                                       recorded=seq)
         res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})
     _atomic_savez(folder / "out" / f"{slab}.npz", **res)
 

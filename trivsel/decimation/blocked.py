@@ -407,21 +407,26 @@ def region_input(plan, T, owner, k):
     return {"local": local, "tets": tl, "located": located, "locked": ~plan["free"][local]}
 
 
-def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False, budget=INF):
+def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=False, budget=INF, recorded=None):
     """Decimate one region (:func:`region_input`; ``values`` at its ``local`` points) on the
     grid's lattice (exact integer predicates), its free vertices the only ones that move, down
     to ``tau``, by at most ``quota`` vertices and, with a ``budget``, while the squared error of
     its points grows by at most that.  Returns the points it removed, its new tetrahedra, and
     the points inside them with their rows (global indices); with ``costs``, the running maxima
-    of its collapse costs in the order made and the squared error they add
-    (:func:`running_sse`) first, and that result: the one a run whose quota is all of these
-    collapses gives (:func:`cut_quota` then reuses it)."""
+    of its collapse costs in the order made, the squared error they add (:func:`running_sse`)
+    and the collapses themselves (the points removed and the vertices they moved onto, local
+    indices) first, and that result: the one a run whose quota is all of these collapses gives
+    (:func:`cut_quota` then reuses it).  With ``recorded`` (those collapses, the first
+    ``quota`` of them), they are replayed, not costed again: the same result as the run."""
     local = inp["local"]
     St = new_mesh_state(np.stack(np.unravel_index(local, shape), axis=1), inp["tets"],
                         np.asarray(values, np.float64), located=inp["located"], key="sse", lazy=False)
     St.lock[inp["locked"]] |= LOCK_ALL
-    dec = Decimation(None, None, None, tol_inf=tol_inf, state=St)
-    dec.run(0 if quota is None else dec.n_vertices - int(quota), sse_max=dec.sse + budget, key_max=tau)
+    dec = Decimation(None, None, None, tol_inf=tol_inf, state=St, queue=recorded is None)
+    if recorded is not None:
+        dec.replay(recorded[0][:quota], recorded[1][:quota])
+    else:
+        dec.run(0 if quota is None else dec.n_vertices - int(quota), sse_max=dec.sse + budget, key_max=tau)
     if not costs and quota is not None and len(dec.removed()) != quota:
         raise RuntimeError("a region did not repeat its recorded collapses")
     alive_row = np.cumsum(dec.S.alive) - 1
@@ -430,7 +435,8 @@ def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=
     result = local[removed], local[dec.tetrahedra()], local[nonv], alive_row[dec.S.ptet[nonv]]
     if costs:
         keys = dec.S.hkey[removed]
-        return (np.maximum.accumulate(keys) if len(keys) else keys.copy()), running_sse(dec.S.hsse[removed]), result
+        return ((np.maximum.accumulate(keys) if len(keys) else keys.copy()), running_sse(dec.S.hsse[removed]),
+                (removed.astype(np.int32), dec.into().astype(np.int32)), result)
     return result
 
 
@@ -697,10 +703,11 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     if costed:
         sh["caps"] = cost_caps(plan, surplus, share_cap=tau == INF)
         recorded = list(_map(_region_costs, runs, threads))
-        runmax = [r for r, _, _ in recorded]
+        runmax = [r for r, _, _, _ in recorded]
         cut, limit = pass_limit(kind, surplus, limit, runmax, free_share(plan, isv))
-        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _ in recorded], budget, cut)
-        whole = {k: res for k, (r, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
+        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _, _ in recorded], budget, cut)
+        whole = {k: res for k, (r, _, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
+        sh["recorded"] = {k: seq for k, (_, _, seq, _) in enumerate(recorded) if k not in whole}
         del recorded
     todo = [k for k in runs if k not in whole]
     done = dict(zip(todo, _map(_region_apply, todo, threads)))
@@ -726,7 +733,8 @@ def _region_costs(k):
 def _region_apply(k):
     sh, inp, values = _region(k)
     return region_decimate(inp, _SHARED["vol"].shape, values, tau=sh["tau"], tol_inf=sh["tol_inf"],
-                           quota=None if sh["quota"] is None else sh["quota"][k])
+                           quota=None if sh["quota"] is None else sh["quota"][k],
+                           recorded=sh["recorded"].get(k) if "recorded" in sh else None)
 
 
 def stop_reason(vertices, target, tol_inf, block, tol_rms=None):
