@@ -35,6 +35,14 @@ the largest job by Snakemake's benchmark files, the count and the errors::
 
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
 exact queue down to its share of the count and below).
+
+``--record-floor`` times pass 1 on every block of each volume, each block recorded to its end and
+to ``RECORD_FLOOR`` of its share of the count, the two alternating: the seconds of both and their
+ratio, the blocks whose record stopped short, those the cut records again
+(:func:`trivsel.decimation.blocked.short_blocks`), and whether the threshold is that of whole
+records; also where each block stands at the threshold (its vertices left over its share)::
+
+    python benchmarks/bench_blocked_decimate.py --record-floor --volumes f4 t1 --size 129 --block 32 --fractions 0.05 0.1
 """
 
 from __future__ import annotations
@@ -212,6 +220,38 @@ def phases(source, block, fraction):
         print(f"  {what}: {secs:.2f} s, {nv} vertices")
 
 
+def record_floor(name, size, block, fraction):
+    """Pass 1 with and without the record floor on every block of ``name`` (module docstring)."""
+    from trivsel.decimation import blocked as B
+    from trivsel.selection import count_for_fraction
+
+    vol = volume(name, size)
+    N = vol.size
+    cuts, bounds = B.block_list(vol.shape, block)
+    seams = [c[1:-1] for c in cuts]
+    target = count_for_fraction(fraction, N)
+    secs = {0.0: 0.0, B.RECORD_FLOOR: 0.0}
+    rec = {0.0: [], B.RECORD_FLOOR: []}
+    for i, (lo, hi) in enumerate(bounds):
+        values = vol[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1]
+        for floor in (list(secs) if i % 2 else list(secs)[::-1]):
+            t = time.perf_counter()
+            rec[floor].append(B.block_costs(values, lo, vol.shape, seams, fraction=target / N, floor=floor))
+            secs[floor] += time.perf_counter() - t
+    inner = [r[1] for r in rec[0.0]]
+    cut = {f: B.threshold([r[0] for r in rs], inner, N - sum(inner), B.aim(target, N, N - sum(inner)))
+           for f, rs in rec.items()}
+    floored = rec[B.RECORD_FLOOR]
+    short = [r[4] for r in floored]
+    again = B.short_blocks([r[0] for r in floored], short, cut[B.RECORD_FLOOR][1])
+    tau = cut[0.0][0]
+    left = np.array([(n - np.searchsorted(r[0], tau, side="right")) / (n * target / N) for r, n in zip(rec[0.0], inner)])
+    print(f"| {name} {size}^3 | {block} | {fraction:g} | {secs[0.0]:.1f} | {secs[B.RECORD_FLOOR]:.1f} | "
+          f"{secs[B.RECORD_FLOOR] / secs[0.0]:.2f} | {sum(short)} of {len(bounds)} | {len(again)} | "
+          f"{'yes' if cut[B.RECORD_FLOOR][0] == tau else 'once recorded again' if again else 'NO'} | {left.min():.2f}, {np.median(left):.2f} |",
+          flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop) or fN (function N)")
@@ -224,11 +264,21 @@ def main(argv=None):
     ap.add_argument("--rms", type=float, help="with --jobs: stop at this E_RMS tolerance instead of the fractions")
     ap.add_argument("--keep", help="with --jobs: the folder for the runs (default: a new temporary one)")
     ap.add_argument("--phases", choices=["t1", "f4"], help="pass 1 on one block, its phases timed")
+    ap.add_argument("--record-floor", action="store_true",
+                    help="pass 1 on every block, recorded to its end and to RECORD_FLOOR of its share, timed")
     ap.add_argument("--tol-rms", action="store_true",
                     help="blocked to the unblocked run's E_RMS at each fraction, not to its count")
     a = ap.parse_args(argv)
     if a.phases:
         phases(a.phases, a.block, a.fractions[0])
+        return
+    if a.record_floor:
+        print("| volume | block | fraction | pass 1 s, whole records | to the floor | ratio | short | recorded again "
+              "| same threshold | left at it / share: min, median |")
+        print("|---|---|---|---|---|---|---|---|---|---|")
+        for name in a.volumes:
+            for fraction in a.fractions:
+                record_floor(name, a.size, a.block, fraction)
         return
     if a.jobs:
         print("| input | block | target | vertices | wall | largest process GB | largest job GB | E_RMS data | "

@@ -267,7 +267,8 @@ def _cut(out, st):
         _atomic_savez(out / "costs" / "whole.npz", **whole)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
-                                                     "sse": B.sse_at(sse, counts) if counts else 0.0}))
+                                                     "sse": B.sse_at(sse, counts) if counts else 0.0,
+                                                     "recorded_again": len({k.split("_")[1] for k in whole})}))
 
 
 def _number(x):

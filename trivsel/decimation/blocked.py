@@ -8,8 +8,9 @@ into blocks that share their faces (the *seams*)::
     costs    every block is decimated on its own, its seam points locked, and its
              sequence of collapse costs recorded (Hoppe's progressive meshes: the
              collapses in the order made, each with its cost), down to a floor under
-             its share of the count (``RECORD_FLOOR``; again to its end where the cut
-             compares a cost past the record's: ``short_blocks``)
+             its share of the count (``RECORD_FLOOR``; on while the rest is cheap,
+             ``RECORD_TAIL``; again to its end where the cut compares a cost past the
+             record's: ``short_blocks``)
     cut      one cost threshold tau for all the blocks, from the sequences' running
              maxima: the blocks' points left at tau, and the seams' at the blocks'
              density, come to the cut's aim: 1.2 times the count asked for, more
@@ -106,6 +107,10 @@ SSE_SHARE = OVERSHOOT ** (-4.0 / 3.0)
 #: docs/notes).  A block whose record ends at or below a cost the cut compared is recorded again to its end
 #: (:func:`short_blocks`), so the threshold, and the mesh, are those of whole records
 RECORD_FLOOR = 0.25
+#: Past the floor a block's record goes on while that takes at most this part of the time it took to the floor
+#: (in steps of TAIL_STEP collapses): where the rest is cheap (a real volume's blocks: their records end near the
+#: floor, or in a background) the record is whole and the cut need not record it again
+RECORD_TAIL, TAIL_STEP = 0.1, 256
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
 #: A count's run in blocks keeps about one piece's errors down to this fraction of the points in blocks of
@@ -183,9 +188,14 @@ def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms
     :func:`trivsel.decimation.reduce_by_collapse` does near its stop), until the first
     collapse that costs more than ``key_max``: the same sequence every time.  With a ``floor``
     (and a count), the exact run stops at its seam points and ``floor`` times its share, and
-    goes on only through collapses of cost 0: a prefix of that sequence.  Returns the
-    decimation, the points' global indices, the seam flags and whether the floor cut the
-    sequence short (a collapse of a positive cost was left)."""
+    goes on past it while that takes at most :data:`RECORD_TAIL` of the time spent so far, and
+    then through collapses of cost 0 only: a prefix of that sequence (which prefix depends on
+    the clock; the mesh never does, :func:`short_blocks`).  Returns the decimation, the points'
+    global indices, the seam flags and whether the floor cut the sequence short (a collapse of
+    a positive cost was left)."""
+    import time
+
+    start = time.perf_counter()
     S, gid, seam = _block_state(values, lo, shape, seam_axes)
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
     share = (~seam).sum() * fraction  # its locked seam points stay
@@ -196,6 +206,11 @@ def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms
     stop = int(seam.sum() + floor * share) if floor > 0 and share > 0 else 0
     if dec.run(stop, key_max=key_max) != 0 or stop == 0:
         return dec, gid, seam, False
+    spent = time.perf_counter() - start
+    tail = time.perf_counter()
+    while time.perf_counter() - tail <= RECORD_TAIL * spent:  # the rest while it is cheap, in steps
+        if dec.run(max(dec.n_vertices - TAIL_STEP, 0), key_max=key_max) != 0:
+            return dec, gid, seam, False
     return dec, gid, seam, dec.run(0, key_max=min(key_max, 0.0)) == 2
 
 
@@ -548,7 +563,8 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
     indices, C order), ``tets`` (``(M, 4)`` global point indices, positively oriented), ``ptet``
     (for every point, the row of ``tets`` that holds it; -1 for the vertices), ``tau`` (the
     cost threshold) and ``stats`` (counts per pass; ``sse_bound``, the squared error the
-    collapses may have added, at most the budget).  ``progress(count)`` is called with the vertex
+    collapses may have added, at most the budget; ``recorded_again``, the blocks whose pass 1
+    record was taken again to its end: :func:`short_blocks`).  ``progress(count)`` is called with the vertex
     count after every block and every pass.  ``threads`` processes decimate blocks, and the
     regions of a pass, side by side (forked: the same results as one).  The stages are the
     functions the jobs of ``trivsel blocks --method decimate`` call (:mod:`trivsel.blocks.decimate`),
@@ -581,11 +597,13 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
             recorded.append(seq)
             sse.append(e)
             short.append(s)
+    recorded_again = 0
     while True:  # once more at most: the blocks recorded again have whole records
         tau, decided = threshold(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse, budget)
         again = short_blocks(runmax, short, decided)
         if not again:
             break
+        recorded_again += len(again)
         _SHARED["floor"] = 0.0
         for i, (r, _, seq, e, s) in zip(again, _map(_block_costs, again, threads)):
             runmax[i], recorded[i], sse[i], short[i] = r, seq, e, s
@@ -606,7 +624,8 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
 
     T, owner, isv = assemble(N, meshes(), counts, [tuple(lo) for lo, _ in bounds])
     _SHARED.pop("recorded")
-    stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": []}
+    stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": [],
+             "recorded_again": recorded_again}
 
     # the seams, region by region (every vertex a candidate, down to tau); then the quota
     # passes: the vertices over the target, or the budget left, the cheapest across the regions,
