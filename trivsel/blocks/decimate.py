@@ -251,24 +251,23 @@ def _cut(out, st):
                     sse.append(z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(runmax[-1])))
                     short.append(bool(z[f"short_{i}"]) if f"short_{i}" in z.files else False)
     whole = {}
-    while True:  # once more at most: the blocks recorded again have whole records
-        tau, decided = B.threshold(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse,
-                                   st.budget())
-        again = B.short_blocks(runmax, short, decided)
-        if not again:
-            break
+
+    def record_again(blocks):  # to their end, one at a time
         vol = _open(st.cfg)
         bounds = {i: (lo, hi) for slab in st.slabs for i, lo, hi in st.blocks_of(slab)}
-        for i in again:
+        for i in blocks:
             rec = _block_record(vol, st, i, *bounds[i], 0.0)
             whole.update(rec)
-            runmax[i], sse[i], short[i] = rec[f"runmax_{i}"], rec[f"sse_{i}"], False
+            yield rec[f"runmax_{i}"], rec[f"sse_{i}"]
+
+    tau, again = B.threshold_of_whole_records(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse,
+                                              st.budget(), short, record_again)
     if st.costed:
         _atomic_savez(out / "costs" / "whole.npz", **whole)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": B.sse_at(sse, counts) if counts else 0.0,
-                                                     "recorded_again": len({k.split("_")[1] for k in whole})}))
+                                                     "recorded_again": len(again)}))
 
 
 def _number(x):

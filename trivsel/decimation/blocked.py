@@ -63,13 +63,15 @@ region, and the error grows (``docs/notes``).
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
-           "short_blocks",
+           "short_blocks", "threshold_of_whole_records",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
            "region_decimate", "cost_caps", "cut_quota", "quota_limit", "free_share", "pass_limit", "merge_pass",
            "decimate_in_blocks", "pass_runs",
@@ -193,8 +195,6 @@ def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms
     the clock; the mesh never does, :func:`short_blocks`).  Returns the decimation, the points'
     global indices, the seam flags and whether the floor cut the sequence short (a collapse of
     a positive cost was left)."""
-    import time
-
     start = time.perf_counter()
     S, gid, seam = _block_state(values, lo, shape, seam_axes)
     dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
@@ -334,6 +334,23 @@ def short_blocks(runmax, short, decided):
     the cost ``decided`` (:func:`threshold`): recorded again to their last collapse, the cut
     is that of whole records (every cost it compares lies below every record's end)."""
     return [i for i, (r, s) in enumerate(zip(runmax, short)) if s and (not len(r) or r[-1] <= decided)]
+
+
+def threshold_of_whole_records(runmax, inner, seam_points, target, sse, budget, short, record_again):
+    """:func:`threshold`'s tau of records cut at their floor, as of whole ones: the blocks that
+    :func:`short_blocks` names are recorded again by ``record_again(blocks)`` (an iterable of
+    each one's running maxima and squared errors, in order; ``runmax``, ``sse`` and ``short``
+    are updated in place), and tau is taken again; once at most, since whole records are never
+    short and tau only falls.  Returns tau and the blocks recorded again."""
+    again_all = []
+    while True:
+        tau, decided = threshold(runmax, inner, seam_points, target, sse, budget)
+        again = short_blocks(runmax, short, decided)
+        if not again:
+            return tau, again_all
+        for i, (r, e) in zip(again, record_again(again)):
+            runmax[i], sse[i], short[i] = r, e, False
+        again_all += again
 
 
 def index_type(n):
@@ -597,16 +614,15 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
             recorded.append(seq)
             sse.append(e)
             short.append(s)
-    recorded_again = 0
-    while True:  # once more at most: the blocks recorded again have whole records
-        tau, decided = threshold(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse, budget)
-        again = short_blocks(runmax, short, decided)
-        if not again:
-            break
-        recorded_again += len(again)
+
+    def record_again(blocks):  # to their end
         _SHARED["floor"] = 0.0
-        for i, (r, _, seq, e, s) in zip(again, _map(_block_costs, again, threads)):
-            runmax[i], recorded[i], sse[i], short[i] = r, seq, e, s
+        for i, (r, _, seq, e, _) in zip(blocks, _map(_block_costs, blocks, threads)):
+            recorded[i] = seq
+            yield r, e
+
+    tau, again = threshold_of_whole_records(runmax, inner, N - sum(inner), aim(target, N, N - sum(inner)), sse,
+                                            budget, short, record_again)
 
     # pass 2: every block to tau (the prefix of its sequence, replayed)
     counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
@@ -625,7 +641,7 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
     T, owner, isv = assemble(N, meshes(), counts, [tuple(lo) for lo, _ in bounds])
     _SHARED.pop("recorded")
     stats = {"blocks": len(bounds), "tau": float(tau), "after_blocks": int(isv.sum()), "seam_passes": [],
-             "recorded_again": recorded_again}
+             "recorded_again": len(again)}
 
     # the seams, region by region (every vertex a candidate, down to tau); then the quota
     # passes: the vertices over the target, or the budget left, the cheapest across the regions,
@@ -716,7 +732,7 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     plan = pass_plan(shape, T, owner, isv, cand, offset, size)
     runs = range(len(plan["starts"]))
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
-                                  budget=budget)
+                                  budget=budget, recorded={})
     whole = {}  # the regions whose quota is every collapse they recorded: that run's result
     spent, cut = 0.0, INF
     if costed:
@@ -753,7 +769,7 @@ def _region_apply(k):
     sh, inp, values = _region(k)
     return region_decimate(inp, _SHARED["vol"].shape, values, tau=sh["tau"], tol_inf=sh["tol_inf"],
                            quota=None if sh["quota"] is None else sh["quota"][k],
-                           recorded=sh["recorded"].get(k) if "recorded" in sh else None)
+                           recorded=sh["recorded"].get(k))
 
 
 def stop_reason(vertices, target, tol_inf, block, tol_rms=None):
