@@ -34,7 +34,7 @@ the largest job by Snakemake's benchmark files, the count and the errors::
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --rms 1.16
 
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
-exact queue down to its share of the count and below).
+exact queue down to its share of the count, and below it the exact queue or the lazy one).
 
 ``--record-floor`` times pass 1 on every block of each volume, each block recorded to its end and
 to ``RECORD_FLOOR`` of its share of the count, the two alternating: the seconds of both and their
@@ -184,7 +184,9 @@ def jobs(source, size, block, fraction=None, count=None, keep=None, rms=None):
 
 def phases(source, block, fraction):
     """Pass 1 on one interior block, its phases timed: the lazy queue to twice its share of the
-    count, then the exact queue to its share, half, a quarter, and to the end."""
+    count, then the exact queue to its share, half, a quarter, and to the end; and again with
+    the lazy queue below its share (what pass 1 does: ``RECORD_EXACT_TO``).  Each row gives the
+    block's squared error at its end."""
     from trivsel.decimation import EXACT_WITHIN, Decimation
     from trivsel.decimation.blocked import _block_state, block_cuts
 
@@ -201,23 +203,26 @@ def phases(source, block, fraction):
     cuts = [block_cuts(n, block) for n in full.shape]
     lo = [int(c[len(c) // 2 - 1]) for c in cuts]  # a block away from the box
     vol = full[lo[0]:lo[0] + block + 1, lo[1]:lo[1] + block + 1, lo[2]:lo[2] + block + 1]
-    S, _, seam = _block_state(vol, lo, full.shape, [c[1:-1] for c in cuts])
-    t = time.perf_counter()
-    dec = Decimation(None, None, None, state=S)
-    share = (~seam).sum() * fraction
-    rows = [("start", time.perf_counter() - t, dec.n_vertices)]
-    t = time.perf_counter()
-    dec.run(int(seam.sum() + EXACT_WITHIN * share))
-    rows.append(("lazy to twice its share", time.perf_counter() - t, dec.n_vertices))
-    dec.lazy = False
-    for f in (1.0, 0.5, 0.25, 0.0):
+    print(f"{source}: the block at {lo} of {block} intervals ({vol.size} points), fraction {fraction:g}")
+    for below in ("exact", "lazy"):
+        S, _, seam = _block_state(vol, lo, full.shape, [c[1:-1] for c in cuts])
         t = time.perf_counter()
-        dec.run(int(seam.sum() + f * share))
-        rows.append((f"exact to {f:g} of its share", time.perf_counter() - t, dec.n_vertices))
-    print(f"{source}: the block at {lo} of {block} intervals ({vol.size} points, {int(seam.sum())} on seams), "
-          f"fraction {fraction:g}")
-    for what, secs, nv in rows:
-        print(f"  {what}: {secs:.2f} s, {nv} vertices")
+        dec = Decimation(None, None, None, state=S)
+        share = (~seam).sum() * fraction
+        rows = [("start", time.perf_counter() - t, dec.n_vertices, dec.sse)]
+        t = time.perf_counter()
+        dec.run(int(seam.sum() + EXACT_WITHIN * share))
+        rows.append(("lazy to twice its share", time.perf_counter() - t, dec.n_vertices, dec.sse))
+        dec.lazy = False
+        for f in (1.0, 0.5, 0.25, 0.0):
+            t = time.perf_counter()
+            dec.run(int(seam.sum() + f * share))
+            rows.append((f"{'exact' if f == 1.0 else below} to {f:g} of its share", time.perf_counter() - t,
+                         dec.n_vertices, dec.sse))
+            dec.lazy = below == "lazy"
+        print(f"  below its share {below} ({int(seam.sum())} points on seams):")
+        for what, secs, nv, sse in rows:
+            print(f"    {what}: {secs:.2f} s, {nv} vertices, squared error {sse:.6g}")
 
 
 def record_floor(name, size, block, fraction):

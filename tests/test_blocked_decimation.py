@@ -198,6 +198,59 @@ def test_blocks_recorded_to_a_floor_give_the_mesh_of_whole_records(floor, monkey
     assert (len(again[0]) > 0) == (floor > 0) == (out["stats"]["recorded_again"] > 0) and again[-1] == []
 
 
+def test_quota_passes_record_only_up_to_their_limit_and_make_the_collapses_of_whole_records(monkeypatch):
+    """Once the first quota pass has derived the quota passes' cost limit, the later ones stop
+    recording at it (the cut takes nothing above it): the mesh of records that go on past it,
+    with fewer collapses recorded.  A limit below the derived one would change the mesh."""
+    from trivsel.decimation import blocked
+
+    assert blocked.record_limit("seams", 2.0, 1.0) == 2.0
+    assert blocked.record_limit("quota", 2.0, 1.0) == 1.0
+    assert blocked.record_limit("quota", 2.0, None) == np.inf
+    assert blocked.record_limit("rest", 2.0, 1.0) == np.inf
+    vol = smooth_volume((30, 30, 30), seed=5)
+    recorded = []
+    region = blocked.region_decimate
+
+    def spy(*a, costs=False, **k):
+        out = region(*a, costs=costs, **k)
+        if costs:
+            recorded.append(len(out[0]))
+        return out
+
+    monkeypatch.setattr(blocked, "region_decimate", spy)
+    ref = decimate_in_blocks(vol, 10, count=900)
+    limited = sum(recorded)
+    assert any(p["limit"] < np.inf for p in ref["stats"]["seam_passes"][1:])
+    recorded.clear()
+    monkeypatch.setattr(blocked, "record_limit", lambda kind, tau, limit: tau if kind == "seams" else np.inf)
+    out = decimate_in_blocks(vol, 10, count=900)
+    assert all(np.array_equal(ref[k], out[k]) for k in ("vertices", "tets", "ptet"))
+    assert limited < sum(recorded)
+
+
+@pytest.mark.parametrize("tail", [0.0, 10.0])
+def test_a_block_recorded_to_any_floor_is_a_prefix_of_its_whole_record(tail, monkeypatch):
+    """Pass 1's record of a block is the same sequence whatever its floor and tail: exact costs
+    from twice its share down to RECORD_EXACT_TO of it, lazy after, wherever the record stops on
+    the way, so the cut and pass 2 see prefixes of one sequence (a block with a flat part, whose
+    collapses of cost 0 go on past the floor)."""
+    from trivsel.decimation import blocked
+
+    vol = smooth_volume((21, 21, 21), seed=7)
+    vol[:, :9] = 0.0
+    cuts, bounds = blocked.block_list(vol.shape, 10)
+    seam_axes = [c[1:-1] for c in cuts]
+    monkeypatch.setattr(blocked, "RECORD_TAIL", tail)
+    lo, hi = bounds[0]
+    values = vol[lo[0]:hi[0] + 1, lo[1]:hi[1] + 1, lo[2]:hi[2] + 1]
+    whole = blocked.block_costs(values, lo, vol.shape, seam_axes, fraction=0.1, floor=0.0)[2]
+    for floor in (0.25, 0.5, 1.0, 1.5):
+        part = blocked.block_costs(values, lo, vol.shape, seam_axes, fraction=0.1, floor=floor)[2]
+        assert 0 < len(part[0]) <= len(whole[0])
+        assert all(np.array_equal(p, w[:len(p)]) for p, w in zip(part, whole)), floor
+
+
 def test_a_region_replays_its_recorded_collapses_up_to_its_quota_to_the_mesh_of_its_run(monkeypatch):
     """Where a pass's cut takes only the first of a region's recorded collapses, they are replayed
     (no cost computed again): the mesh of the region run again to its quota."""

@@ -371,13 +371,14 @@ def _step(out, st, p):
         plan = {k: np.zeros(0, np.int64) for k in ("order", "starts", "ends", "region", "nfree")}
         plan["left"] = cand
     tau, _ = _tau(out)
-    tau_p = tau if kind == "seams" else INF
-    caps = B.cost_caps(plan, surplus, share_cap=tau_p == INF) if run and st.costed else None
+    limit = _limit(out, st, p)
+    tau_p = B.record_limit(kind, tau, None if np.isnan(limit) else limit)
+    caps = B.cost_caps(plan, surplus, share_cap=kind != "seams") if run and st.costed else None
     _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
                   region=plan["region"], left=plan["left"], ran=np.bool_(run),
                   surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p),
                   spent=np.float64(spent), budget=np.float64(left), share=np.float64(B.free_share(plan, isv)),
-                  limit=np.float64(_limit(out, st, p)))
+                  limit=np.float64(limit))
     per = int(dims[1] * dims[2])
     for slab in st.region_slabs(p):
         res = {}
