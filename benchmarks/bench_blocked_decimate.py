@@ -23,7 +23,8 @@ tolerance (at most 1 by construction) and the seconds of both::
 prints its time, its count and its process's peak memory.
 
 ``--jobs`` runs ``trivsel blocks --method decimate --values data fit -c 2`` as a user does, a
-whole process timed by ``/usr/bin/time``: on the whole T1 (``--jobs t1``, converted to Zarr
+whole process timed by ``/usr/bin/time`` after ``trivsel compile --method decimate`` (as a run
+after the first on a machine finds the kernels): on the whole T1 (``--jobs t1``, converted to Zarr
 first) or on function 4 (``--jobs f4 --size 257``), to each ``--fractions`` (or ``--count``).
 Prints the wall time, the largest process's peak memory (every job is a process of its own),
 the largest job by Snakemake's benchmark files, the count and the errors::
@@ -35,6 +36,12 @@ the largest job by Snakemake's benchmark files, the count and the errors::
 
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
 exact queue down to its share of the count, and below it the exact queue or the lazy one).
+
+``--record-exact`` runs the blocked decimation (``--threads`` processes) with every block's record
+exact to its end and as by default (exact to its share of the count, lazy below it:
+``RECORD_EXACT_TO``): the errors and seconds of both and their ratios::
+
+    python benchmarks/bench_blocked_decimate.py --record-exact --volumes f4 t1 --size 129 --block 32 --threads 2
 
 ``--record-floor`` times pass 1 on every block of each volume, each block recorded to its end and
 to ``RECORD_FLOOR`` of its share of the count, the two alternating: the seconds of both and their
@@ -164,6 +171,9 @@ def jobs(source, size, block, fraction=None, count=None, keep=None, rms=None):
     stop, name = ((["--count", str(count)], count) if count is not None else (["--tol-rms", str(rms)], f"rms{rms}")
                   if rms is not None else (["--fraction", str(fraction)], fraction))
     out = folder / f"run-{source}-{block}-{name}"
+    # the kernels as a user's runs after the first on a machine find them (compiled once, then loaded)
+    subprocess.run([sys.executable, "-m", "trivsel", "compile", "--method", "decimate"], check=True,
+                   capture_output=True)
     cmd = ["/usr/bin/time", "-v", sys.executable, "-m", "trivsel", "blocks", *src, "--block", str(block), "--method",
            "decimate", *stop, "--values", "data", "fit", "--out", str(out), "-c", "2"]
     p = subprocess.run(cmd, capture_output=True, text=True)
@@ -257,6 +267,34 @@ def record_floor(name, size, block, fraction):
           flush=True)
 
 
+def record_exact(name, vol, block, fraction, threads):
+    """The blocked run with each block's record exact to its end (``RECORD_EXACT_TO`` 0) and as
+    by default, alternating (one round of each): the errors of both (data values, fitted values,
+    E_inf), the seconds, and the ratios default / exact."""
+    from trivsel.decimation import blocked as B
+    from trivsel.fitting import fit_vertex_values
+
+    f = vol.reshape(-1).astype(float)
+    default = B.RECORD_EXACT_TO
+    res = {}
+    for v in (0.0, default):
+        B.RECORD_EXACT_TO = v
+        try:
+            t = time.perf_counter()
+            out = B.decimate_in_blocks(vol, block, fraction=fraction, threads=threads)
+            secs = time.perf_counter() - t
+        finally:
+            B.RECORD_EXACT_TO = default
+        verts, w = B.point_weights(vol.shape, out["tets"], out["ptet"])
+        r = f - np.einsum("ij,ij->i", w, f[verts])
+        _, rf = fit_vertex_values(verts, w, f, out["vertices"])
+        res[v] = (float(np.sqrt(np.mean(r ** 2))), float(np.sqrt(np.mean(rf ** 2))), float(np.abs(r).max()), secs)
+    e, d = res[0.0], res[default]
+    print(f"| {name} | {block} | {fraction:g} | {len(out['vertices'])} | {e[0]:.6g}, {e[1]:.6g}, {e[2]:.4g} | "
+          f"{d[0]:.6g}, {d[1]:.6g}, {d[2]:.4g} | {d[0] / e[0]:.4f} | {d[1] / e[1]:.4f} | {d[2] / e[2]:.3f} | "
+          f"{e[3]:.0f}, {d[3]:.0f} | {d[3] / e[3]:.2f} |", flush=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop) or fN (function N)")
@@ -271,6 +309,9 @@ def main(argv=None):
     ap.add_argument("--phases", choices=["t1", "f4"], help="pass 1 on one block, its phases timed")
     ap.add_argument("--record-floor", action="store_true",
                     help="pass 1 on every block, recorded to its end and to RECORD_FLOOR of its share, timed")
+    ap.add_argument("--record-exact", action="store_true",
+                    help="the blocked run with records exact to their end against the default (RECORD_EXACT_TO)")
+    ap.add_argument("--threads", type=int, default=1, help="processes of the blocked runs in this process")
     ap.add_argument("--tol-rms", action="store_true",
                     help="blocked to the unblocked run's E_RMS at each fraction, not to its count")
     a = ap.parse_args(argv)
@@ -284,6 +325,15 @@ def main(argv=None):
         for name in a.volumes:
             for fraction in a.fractions:
                 record_floor(name, a.size, a.block, fraction)
+        return
+    if a.record_exact:
+        print("| volume | block | fraction | vertices | exact records: E_RMS, fit, E_inf | default | E_RMS ratio | "
+              "fit ratio | E_inf ratio | seconds exact, default | ratio |")
+        print("|---" * 11 + "|")
+        for name in a.volumes:
+            vol = volume(name, a.size)
+            for fr in a.fractions:
+                record_exact(f"{name} {a.size}^3", vol, a.block, fr, a.threads)
         return
     if a.jobs:
         print("| input | block | target | vertices | wall | largest process GB | largest job GB | E_RMS data | "

@@ -116,8 +116,8 @@ RECORD_FLOOR = 0.25
 RECORD_TAIL, TAIL_STEP = 0.1, 256
 #: A block's record takes its collapses with exact costs from EXACT_WITHIN times its share of the count down to
 #: this part of its share, and with the lazy queue again below it: only the blocks that the threshold takes past
-#: their share use that part of the record, and it is the costliest part to take exactly (the same errors within
-#: 0.2 % on the T1 crop and f4 at 129^3, pass 1 faster by a third on f4: measured, docs/notes)
+#: their share use that part of the record, and it is the costliest part to take exactly (E_RMS within 0.15 %
+#: on the T1 crop and f4 at 129^3, whole runs on f4 in 0.71-0.79x the time: measured, docs/notes)
 RECORD_EXACT_TO = 1.0
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
