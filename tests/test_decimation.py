@@ -18,7 +18,18 @@ from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import grid_from_array
 from trivsel.decimation import INF, Decimation, grid_tetrahedra, reduce_by_collapse
-from trivsel.decimation.collapse import _best, _planes, _value_in, _value_moved
+from trivsel.decimation.collapse import _best, _gather, _locate_star, _planes, _star, _value_moved
+
+
+def _value_in(P, f, q0, q1, q2, q3, p):
+    """``(inside, L)`` of p in the closed tet (q0, q1, q2, q3) by its four orientations with p
+    in each slot (exact integers) and the linear interpolant of eq. 13 there."""
+    x = [P[q0], P[q1], P[q2], P[q3]]
+    lam = [int(_det(*(P[p] if s == r else x[r] for r in range(4)))) for s in range(4)]
+    if min(lam) < 0:
+        return False, 0.0
+    l0, l1, l2, l3 = (float(v) for v in lam)
+    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / (l0 + l1 + l2 + l3)
 
 
 def _det(a, b, c, d):
@@ -177,9 +188,9 @@ def test_a_point_in_a_moved_tetrahedron_is_weighed_as_by_four_orientations(seed,
     seen = 0
     for p in range(len(P)):
         got = _value_moved(P, False, f, Q, G, sc, 0, w, p)
-        want = _value_in(P, False, f, *moved, p)
-        assert got[0] == want[0] and (not got[0] or got[1] == want[1]), (p, got, want)
-        seen += got[0]
+        want = _value_in(P, f, *moved, p)
+        assert (got[0] < 0) == want[0] and (not want[0] or got[1] == want[1]), (p, got, want)
+        seen += want[0]
     assert seen >= len(on) + 4  # those, and the moved tet's corners
     # another target
     u = next((x for x in range(len(P))
@@ -187,8 +198,49 @@ def test_a_point_in_a_moved_tetrahedron_is_weighed_as_by_four_orientations(seed,
     assume(u is not None)
     at_u = [u if s == slot else q[s] for s in range(4)]
     for p in range(len(P)):
-        got, want = _value_moved(P, False, f, Q, G, sc, 0, u, p), _value_in(P, False, f, *at_u, p)
-        assert got[0] == want[0] and (not got[0] or got[1] == want[1]), (u, p)
+        got, want = _value_moved(P, False, f, Q, G, sc, 0, u, p), _value_in(P, f, *at_u, p)
+        assert (got[0] < 0) == want[0] and (not want[0] or got[1] == want[1]), (u, p)
+
+
+@pytest.mark.parametrize("fraction", [0.5, 0.15])
+def test_the_walk_finds_the_tet_a_scan_finds_first(fraction):
+    """``_locate_star`` walks from a point's hint across the faces that separate it: for every
+    queued vertex v of a half-decimated grid, every valid target w and v and every point of
+    its buckets, it returns the star tet that a scan (the hint, then the others in order)
+    finds first, and the same value, bit for bit.  Many of these points lie on faces and
+    edges of the moved tets, where more than one tet holds them."""
+    i, j, k = np.meshgrid(*(np.arange(n) for n in (9, 8, 7)), indexing="ij")
+    values = np.sin(0.7 * i) * np.cos(0.5 * j) + 0.2 * k + 0.05 * np.random.default_rng(3).normal(size=i.shape)
+    data = grid_from_array(values)
+    dec = Decimation(data.ijk, data.shape, data.values)
+    dec.run(int(fraction * data.values.size))
+    S = dec.S
+    sc = np.zeros(256, np.int64)
+    Q, G, kw, X = S.Q, S.G, S.kw, S.X
+    located = on_boundary = 0
+    for v in np.flatnonzero(S.hpos >= 0):
+        n = _star(S, v, sc)
+        m, _ = _gather(S, sc, n, Q)
+        _planes(S.P, Q, sc, n, G)
+        for w in np.unique(Q[:n]):
+            if w == v or not S.isv[w] or any(S.lock[v] >> a & 1 and S.P[w, a] != S.P[v, a] for a in range(3)):
+                continue  # not a vertex, or off a box face that v is on
+            kw[:n] = (Q[:n] == w).any(1)
+            moved = [[w if Q[t, s] == v else Q[t, s] for s in range(4)] for t in range(n)]
+            if any(not kw[t] and _det(*(S.P[x] for x in moved[t])) <= 0 for t in range(n)):
+                continue  # not a valid collapse
+            X[:n] = -2
+            for q in range(-1, m):
+                p = v if q < 0 else S.pbuf[q]
+                hint = -1 if q < 0 else S.phome[q]
+                order = ([hint] if hint >= 0 and not kw[hint] else []) + [t for t in range(n) if t != hint and not kw[t]]
+                holds = [t for t in order if _value_moved(S.P, False, S.f, Q, G, sc, t, w, p)[0] < 0]
+                got = _locate_star(S.P, False, S.f, Q, G, sc, kw, X, n, w, p, hint)
+                assert holds and got[0] == holds[0], (v, w, p, got, holds)
+                assert got[1] == _value_moved(S.P, False, S.f, Q, G, sc, holds[0], w, p)[1]
+                located += 1
+                on_boundary += len(holds) > 1
+    assert located > 1000 and on_boundary > 100, (located, on_boundary)
 
 
 @settings(deadline=None, max_examples=examples(1 / 6))

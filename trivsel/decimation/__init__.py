@@ -116,7 +116,8 @@ class State(NamedTuple):
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
                       the max criterion, lazy updates, the corner pool's top]
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
-                      planes, kw whether each holds the target being tried, B the
+                      planes, kw whether each holds the target being tried, X[i, j]
+                      the star tet across tet i's face opposite its slot j, B the
                       boundary triangles around a mesh's boundary vertex; pbuf
                       the points of the star's buckets, phome the star index of each;
                       mark stamps of points (stamp[0] the last)
@@ -150,6 +151,7 @@ class State(NamedTuple):
     Q: np.ndarray
     G: np.ndarray
     kw: np.ndarray
+    X: np.ndarray
     B: np.ndarray
     stamp: np.ndarray
     pbuf: np.ndarray
@@ -226,7 +228,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                  removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
-                 kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
+                 kw=np.zeros(STAR_CAPACITY, np.bool_), X=np.full((STAR_CAPACITY, 4), -2, np.int64), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                  ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum(), 0], np.int64))
@@ -319,7 +321,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
                  hdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                  removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
-                 kw=np.zeros(STAR_CAPACITY, np.bool_), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
+                 kw=np.zeros(STAR_CAPACITY, np.bool_), X=np.full((STAR_CAPACITY, 4), -2, np.int64), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                  ctr=np.array([int(isv.sum()), 0, 0, key == "max", bool(lazy), cap.sum(), ijk is None], np.int64))

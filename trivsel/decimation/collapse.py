@@ -32,26 +32,6 @@ def _orient(P, flt, a, b, c, d):
 
 
 @njit(cache=True, _nrt=False)
-def _value_in(P, flt, f, q0, q1, q2, q3, p):
-    """``(inside, L)``: whether p is in the closed tet (q0, q1, q2, q3) and, if so, the
-    linear interpolant of the vertex values there (eq. 13)."""
-    l0 = _orient(P, flt, p, q1, q2, q3)
-    if l0 < 0:
-        return False, 0.0
-    l1 = _orient(P, flt, q0, p, q2, q3)
-    if l1 < 0:
-        return False, 0.0
-    l2 = _orient(P, flt, q0, q1, p, q3)
-    if l2 < 0:
-        return False, 0.0
-    l3 = _orient(P, flt, q0, q1, q2, p)
-    if l3 < 0:
-        return False, 0.0
-    D = l0 + l1 + l2 + l3
-    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / D
-
-
-@njit(cache=True, _nrt=False)
 def _has(T, t, w):
     """Whether row t of ``T`` (a tet's four vertices) holds vertex w."""
     return T[t, 0] == w or T[t, 1] == w or T[t, 2] == w or T[t, 3] == w
@@ -100,8 +80,28 @@ def _gather(S, sc, n, Q):
 
 
 @njit(cache=True, _nrt=False)
+def _where(z0, z1, z2, z3):
+    """Where a point lies in a tet that holds it, from which of its four weights are zero:
+    -1 strictly inside, ``-2 - j`` on the face opposite slot j only, ``-6 - 4 j - k`` on
+    the edge opposite slots j < k, -22 on a vertex."""
+    nz = int(z0) + int(z1) + int(z2) + int(z3)
+    if nz == 0:
+        return -1
+    if nz == 1:
+        return -2 if z0 else (-3 if z1 else (-4 if z2 else -5))
+    if nz == 2:
+        j = 0 if z0 else (1 if z1 else 2)
+        k = 3 if z3 else (2 if z2 else 1)
+        return -6 - 4 * j - k
+    return -22
+
+
+@njit(cache=True, _nrt=False)
 def _value_moved(P, flt, f, Q, G, sc, i, w, p):
-    """``_value_in`` for star tet ``Q[i]`` with v's slot holding w.
+    """Whether p lies in star tet ``Q[i]`` with v's slot holding w, and the linear
+    interpolant of the vertex values there (eq. 13): ``(where, L)``, ``where`` -1 if p is
+    strictly inside, less if on its boundary (``_where`` says where), else the slot whose weight is negative (the tet's face opposite it
+    separates p from the tet).
 
     On grid coordinates (``G``: the far faces' planes of ``_planes``) it takes two
     orientations instead of four.  p's weight in v's slot s is the far face's plane at p,
@@ -114,7 +114,7 @@ def _value_moved(P, flt, f, Q, G, sc, i, w, p):
            /  p  \                  the last = D - l_s - the two
           a---|---c
            \  |  /                  All integers on the grid, so exactly the four
-            \ | /                   orientations of ``_value_in``.
+            \ | /                   orientations with p in each slot in turn.
               b
     """
     s = sc[i] & 3
@@ -123,44 +123,165 @@ def _value_moved(P, flt, f, Q, G, sc, i, w, p):
     q2 = w if s == 2 else Q[i, 2]
     q3 = w if s == 3 else Q[i, 3]
     if flt:
-        return _value_in(P, flt, f, q0, q1, q2, q3, p)
+        l0 = _orient(P, flt, p, q1, q2, q3)
+        if l0 < 0:
+            return 0, 0.0
+        l1 = _orient(P, flt, q0, p, q2, q3)
+        if l1 < 0:
+            return 1, 0.0
+        l2 = _orient(P, flt, q0, q1, p, q3)
+        if l2 < 0:
+            return 2, 0.0
+        l3 = _orient(P, flt, q0, q1, q2, p)
+        if l3 < 0:
+            return 3, 0.0
+        D = l0 + l1 + l2 + l3
+        return _where(l0 == 0, l1 == 0, l2 == 0, l3 == 0), (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / D
     ls = G[i, 0] * P[p, 0] + G[i, 1] * P[p, 1] + G[i, 2] * P[p, 2] + G[i, 3]
     if ls < 0:
-        return False, 0.0
+        return s, 0.0
     D = G[i, 0] * P[w, 0] + G[i, 1] * P[w, 1] + G[i, 2] * P[w, 2] + G[i, 3]
-    # the first two slots other than s by orientation, the last other one by difference
+    # the first two slots other than s by orientation, the last other one (jc) by difference
     ja = 1 if s == 0 else 0
     jb = 2 if s <= 1 else 1
+    jc = 2 if s == 3 else 3
     la = _orient(P, False, p, q1, q2, q3) if ja == 0 else _orient(P, False, q0, p, q2, q3)
     if la < 0:
-        return False, 0.0
+        return ja, 0.0
     lb = _orient(P, False, q0, p, q2, q3) if jb == 1 else _orient(P, False, q0, q1, p, q3)
     if lb < 0:
-        return False, 0.0
+        return jb, 0.0
     lc = D - ls - la - lb
     if lc < 0:
-        return False, 0.0
-    # the weights by slot: s holds ls, ja and jb their own, the remaining slot lc
+        return jc, 0.0
+    # the weights by slot: s holds ls, ja and jb their own, jc lc
     l0 = float(ls if s == 0 else (la if ja == 0 else lc))
     l1 = float(ls if s == 1 else (la if ja == 1 else (lb if jb == 1 else lc)))
     l2 = float(ls if s == 2 else (lb if jb == 2 else lc))
     l3 = float(ls if s == 3 else lc)
-    return True, (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / (l0 + l1 + l2 + l3)
+    return _where(l0 == 0, l1 == 0, l2 == 0, l3 == 0), (l0 * f[q0] + l1 * f[q1] + l2 * f[q2] + l3 * f[q3]) / (l0 + l1 + l2 + l3)
 
 
 @njit(cache=True, _nrt=False)
-def _locate_star(P, flt, f, Q, G, sc, kw, n, w, p, hint):
+def _across(Q, sc, X, n, i, j):
+    """The star tet on the other side of star tet i's face opposite its slot j (a face
+    through v, ``j != sc[i] & 3``): the other tet of v's that holds that face's two other
+    vertices, or -1 (the face is on the box or the mesh's boundary).  Found once per star
+    and kept in ``X[i, j]`` (-2: not yet looked for)."""
+    k = X[i, j]
+    if k != -2:
+        return k
+    s = sc[i] & 3
+    a = 0
+    while a == s or a == j:
+        a += 1
+    b = a + 1
+    while b == s or b == j:
+        b += 1
+    x, y = Q[i, a], Q[i, b]
+    k = -1
+    for m in range(n):
+        if m != i and _has(Q, m, x) and _has(Q, m, y):
+            k = m
+            break
+    X[i, j] = k
+    return k
+
+
+@njit(cache=True, _nrt=False)
+def _locate_star(P, flt, f, Q, G, sc, kw, X, n, w, p, hint):
     """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
-    w (``kw[i]`` false), trying star index ``hint`` first; ``(-1, 0)`` if none holds p."""
+    w (``kw[i]`` false) and holds p, ``(-1, 0)`` if none does.  The tet is the one a scan
+    finds first, trying star index ``hint`` first and then the others in order; the same
+    tet is reached by walking from the hint across the face that separates p (``_across``)::
+
+        hint -> across the face p is beyond -> ... -> a tet that holds p
+
+    A tet that holds p strictly inside is the only one that does (the moved star is a
+    tetrahedralisation: every moved tet was checked to keep a positive volume), so the walk
+    ends there; p on a face is also in the tets beyond it, and the first of them in scan
+    order is taken.  A walk that leaves the star or reaches a vanishing tet gives way to
+    the scan itself."""
+    i, j = hint, -1
     if hint >= 0 and not kw[hint]:
-        ok, val = _value_moved(P, flt, f, Q, G, sc, hint, w, p)
-        if ok:
+        j, val = _value_moved(P, flt, f, Q, G, sc, hint, w, p)
+        if j < 0:
             return hint, val
+    elif hint >= 0:
+        # the hint vanishes with the edge vw: start past its face opposite w
+        s = 0
+        while Q[hint, s] != w:
+            s += 1
+        i = _across(Q, sc, X, n, hint, s)
+    else:
+        # v itself (no hint): from past a vanishing tet's face opposite w (beyond v from w)
+        i = 0
+        while i < n and not kw[i]:
+            i += 1
+        if i < n:
+            s = 0
+            while Q[i, s] != w:
+                s += 1
+            i = _across(Q, sc, X, n, i, s)
+        else:
+            i = -1
+    for _ in range(n):
+        if i < 0 or kw[i]:
+            break
+        if j >= 0:
+            if j == sc[i] & 3:
+                break
+            i = _across(Q, sc, X, n, i, j)
+            if i < 0 or kw[i]:
+                break
+        j, val = _value_moved(P, flt, f, Q, G, sc, i, w, p)
+        if j == -1:
+            return i, val
+        if j < -5 and j > -22:
+            # on the edge opposite slots a < b: every tet of the edge holds p, the first in
+            # scan order is taken (an edge through w: every moved tet with its other end)
+            a = (-6 - j) >> 2
+            b = (-6 - j) & 3
+            s = sc[i] & 3
+            c = 0
+            while c == a or c == b or c == s:
+                c += 1
+            x = Q[i, c]
+            y = -1
+            if a == s or b == s:
+                d = c + 1
+                while d == a or d == b or d == s:
+                    d += 1
+                y = Q[i, d]
+            for k in range(i):
+                if k != hint and not kw[k] and _has(Q, k, x) and (y < 0 or _has(Q, k, y)):
+                    where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
+                    if where < 0:
+                        return k, v2
+            return i, val
+        if j < -1 and j > -6:
+            # on one face: the tet across it (if that face is not the star's boundary) holds p too
+            j = -2 - j
+            if j != sc[i] & 3:
+                k = _across(Q, sc, X, n, i, j)
+                if 0 <= k < i and not kw[k]:
+                    where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
+                    if where < 0:
+                        return k, v2
+            return i, val
+        if j == -22:
+            for k in range(i):
+                if k == hint or kw[k]:
+                    continue
+                where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
+                if where < 0:
+                    return k, v2
+            return i, val
     for i in range(n):
         if i == hint or kw[i]:
             continue
-        ok, val = _value_moved(P, flt, f, Q, G, sc, i, w, p)
-        if ok:
+        j, val = _value_moved(P, flt, f, Q, G, sc, i, w, p)
+        if j < 0:
             return i, val
     return -1, 0.0
 
@@ -299,7 +420,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
             return INF, INF, shared
     if shared == 0:
         return INF, INF, shared
-    i, val = _locate_star(P, flt, f, Q, G, sc, kw, n, w, v, -1)
+    i, val = _locate_star(P, flt, f, Q, G, sc, kw, S.X, n, w, v, -1)
     if i < 0:
         return INF, INF, shared
     r = f[v] - val
@@ -312,7 +433,7 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
         if (mx if use_max else new - old) > bound:
             return INF, INF, shared
         p = pbuf[k]
-        i, val = _locate_star(P, flt, f, Q, G, sc, kw, n, w, p, phome[k])
+        i, val = _locate_star(P, flt, f, Q, G, sc, kw, S.X, n, w, p, phome[k])
         if i < 0:
             return INF, INF, shared
         r = f[p] - val
@@ -335,6 +456,9 @@ def _best(S, v, sc, G, mark, tol_inf):
     Q, kw = S.Q, S.kw
     # the squared residuals that the collapse replaces (v's own is 0)
     m, old = _gather(S, sc, n, Q)
+    for _i in range(n):
+        for _j in range(4):
+            S.X[_i, _j] = -2
     nb = 0
     if S.lock[v] & LOCK_MESH:  # on a mesh's boundary: its boundary triangles (``_allowed``)
         nb = _boundary_faces(Q, sc, n, v, S.B)
@@ -371,6 +495,9 @@ def _collapse(S, v, w, sc, n):
     ``_cost`` located them."""
     T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
     m, _ = _gather(S, sc, n, Q)
+    for _i in range(n):
+        for _j in range(4):
+            S.X[_i, _j] = -2
     flt = S.ctr[C_FLOAT] != 0
     if not flt:
         _planes(P, Q, sc, n, S.G)
@@ -379,7 +506,7 @@ def _collapse(S, v, w, sc, n):
     # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
     for k in range(-1, m):
         p = v if k < 0 else pbuf[k]
-        i, val = _locate_star(P, flt, f, Q, S.G, sc, kw, n, w, p, -1 if k < 0 else S.phome[k])
+        i, val = _locate_star(P, flt, f, Q, S.G, sc, kw, S.X, n, w, p, -1 if k < 0 else S.phome[k])
         S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
         r = f[p] - val
         S.acc[0] += r * r - res[p] * res[p]
