@@ -270,13 +270,8 @@ def _locate_star(P, flt, f, Q, G, sc, kw, X, n, w, p, hint):
                         return k, v2
             return i, val
         if j == -22:
-            for k in range(i):
-                if k == hint or kw[k]:
-                    continue
-                where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
-                if where < 0:
-                    return k, v2
-            return i, val
+            # on a vertex: the scan below finds the first of its tets (i at the latest)
+            break
     for i in range(n):
         if i == hint or kw[i]:
             continue
