@@ -198,6 +198,23 @@ def test_blocks_recorded_to_a_floor_give_the_mesh_of_whole_records(floor, monkey
     assert (len(again[0]) > 0) == (floor > 0) == (out["stats"]["recorded_again"] > 0) and again[-1] == []
 
 
+def count_recorded(monkeypatch):
+    """A list that gets the length of every region's record (``region_decimate`` with ``costs``)."""
+    from trivsel.decimation import blocked
+
+    recorded = []
+    region = blocked.region_decimate
+
+    def spy(*a, costs=False, **k):
+        out = region(*a, costs=costs, **k)
+        if costs:
+            recorded.append(len(out[0]))
+        return out
+
+    monkeypatch.setattr(blocked, "region_decimate", spy)
+    return recorded
+
+
 def test_quota_passes_record_only_up_to_their_limit_and_make_the_collapses_of_whole_records(monkeypatch):
     """Once the first quota pass has derived the quota passes' cost limit, the later ones stop
     recording at it (the cut takes nothing above it): the mesh of records that go on past it,
@@ -209,16 +226,7 @@ def test_quota_passes_record_only_up_to_their_limit_and_make_the_collapses_of_wh
     assert blocked.record_limit("quota", 2.0, None) == np.inf
     assert blocked.record_limit("rest", 2.0, 1.0) == np.inf
     vol = smooth_volume((30, 30, 30), seed=5)
-    recorded = []
-    region = blocked.region_decimate
-
-    def spy(*a, costs=False, **k):
-        out = region(*a, costs=costs, **k)
-        if costs:
-            recorded.append(len(out[0]))
-        return out
-
-    monkeypatch.setattr(blocked, "region_decimate", spy)
+    recorded = count_recorded(monkeypatch)
     ref = decimate_in_blocks(vol, 10, count=900)
     limited = sum(recorded)
     assert any(p["limit"] < np.inf for p in ref["stats"]["seam_passes"][1:])
@@ -361,3 +369,70 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     assert len(err) == 1 and err[0].endswith(f"in blocks of bounded memory: {jobs} (or in one process: trivsel "
                                              + " ".join(argv) + " --block 64)"), err
     assert not (tmp_path / "big").exists()
+
+
+def test_the_grid_weights_of_a_mesh_are_the_decimations_own_bit_for_bit():
+    """:func:`point_weights` (integer signed volumes, in chunks of points) gives each point the
+    vertices and weights that the decimation's kernel gives it."""
+    from trivsel.decimation import Decimation
+    from trivsel.decimation.blocked import point_weights, point_weights_of
+
+    vol = smooth_volume((11, 9, 13), seed=2)
+    data = grid_from_array(vol)
+    dec = Decimation(data.ijk, data.shape, data.values)
+    dec.run(90)
+    verts, w = dec.point_weights()
+    S = dec.S
+    ptet = np.where(S.isv, -1, S.ptet)
+    got_v, got_w = point_weights(vol.shape, np.asarray(S.T), ptet)
+    assert np.array_equal(got_v, verts) and np.array_equal(got_w, w)
+    assert (w > 0).any(axis=1).all() and ((w > 0) & (w < 1)).any()
+    some = np.arange(5, vol.size, 7)
+    part_v, part_w = point_weights_of(vol.shape, np.asarray(S.T), ptet, some)
+    assert np.array_equal(part_v, verts[some]) and np.array_equal(part_w, w[some])
+
+
+def test_the_quota_limit_of_records_to_the_share_is_that_of_whole_records():
+    """Records cut at a cap give the limit of records to the whole cap once the regions whose
+    record ends at or below the limit are recorded again; without that, the limit differs."""
+    from trivsel.decimation.blocked import limit_of_whole_records, quota_limit, short_regions
+
+    rng = np.random.default_rng(4)
+    whole = [np.sort(rng.exponential(s, 60)) for s in (1.0, 0.2, 3.0, 0.5)]
+    caps, whole_caps = [20, 20, 20, 60], [60, 60, 60, 60]
+    share, surplus = 0.5, 90
+    cut = [w[:c] for w, c in zip(whole, caps)]
+    assert quota_limit(cut, surplus, share) != quota_limit(whole, surplus, share)
+    asked = []
+
+    def again(ks):
+        asked.append(list(ks))
+        return (whole[k] for k in ks)
+
+    runmax = list(cut)
+    limit, recorded = limit_of_whole_records(runmax, surplus, share, caps, whole_caps, again)
+    assert limit == quota_limit(whole, surplus, share)
+    assert recorded == [k for k in range(4) if caps[k] < 60 and cut[k][-1] <= quota_limit(cut, surplus, share)]
+    assert 0 < len(recorded) < 3 and len(asked) == 1  # the one whose record ends past the limit is not
+    assert short_regions(runmax, [60] * 4, whole_caps, limit) == []
+
+
+def test_the_first_quota_pass_recorded_to_the_share_gives_the_mesh_of_records_to_twice_it(monkeypatch):
+    """The first quota pass records each region to its share of the surplus (and none again
+    here); recorded to twice it, or to 16 collapses (regions recorded again), the meshes are
+    the same, with a count, and with a count and a tolerance."""
+    from trivsel.decimation import blocked
+
+    vol = smooth_volume((40, 40, 40), seed=5)
+    recorded = count_recorded(monkeypatch)
+    for stop in (dict(count=3000), dict(count=3000, tol_rms=0.004)):
+        runs = {}
+        for times in (1, 2, 0):
+            monkeypatch.setattr(blocked, "FIRST_QUOTA_RECORD", times)
+            recorded.clear()
+            out = decimate_in_blocks(vol, 10, **stop)
+            runs[times] = out, sum(recorded), sum(p["recorded_again"] for p in out["stats"]["seam_passes"])
+        ref = runs[1][0]
+        for times in (2, 0):
+            assert all(np.array_equal(ref[k], runs[times][0][k]) for k in ("vertices", "tets", "ptet"))
+        assert runs[1][1] < runs[2][1] and runs[1][2] == 0 and runs[0][2] > 0

@@ -215,6 +215,39 @@ def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_
         assert z.keys() == again.keys() and all(np.array_equal(z[k], again[k]) for k in z)
 
 
+def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quota_job(tmp_path, capsys, monkeypatch):
+    """The first quota pass records each region to its share of the surplus and derives the cost
+    limit from that; where the limit lies at or past a record's end, the quota job records that
+    region again to twice its share (``again.npz``) and the apply jobs use it: the limit, the
+    quotas and the meshes of whole records.  Here the first records stop at 16 collapses, so that
+    regions are recorded again, and the pass's jobs run again in this process."""
+    from trivsel.blocks import decimate as D
+    from trivsel.blocks import read_config
+
+    out = tmp_path / "run"
+    assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
+                 "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
+    capsys.readouterr()
+    st = D.Stages(*read_config(out))
+    p = [kind for kind, _ in st.passes].index("quota")
+    folder = out / "passes" / str(p)
+    assert D._load(folder / "plan.npz")["ran"]
+    names = ["quota.npz"] + [f"out/{s}.npz" for s in st.region_slabs(p)]
+    before = {name: D._load(folder / name) for name in names}
+    monkeypatch.setattr(D.B, "FIRST_QUOTA_RECORD", 0)
+    D.run_job(out, "step", str(p))
+    for kind in ("rcosts", "quota", "apply"):
+        for item in ([f"{p}_{s}" for s in st.region_slabs(p)] if kind != "quota" else [str(p)]):
+            D.run_job(out, kind, item)
+    plan = D._load(folder / "plan.npz")
+    assert (plan["caps"] < plan["whole_caps"]).any()
+    again = D._load(folder / "again.npz")
+    assert any(k.startswith("runmax_") for k in again)
+    for name, z in before.items():
+        now = D._load(folder / name)
+        assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
+
+
 @pytest.mark.slurm
 def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     """Every job through sbatch with the unchanged workflow profile, each COMPLETED in sacct, and

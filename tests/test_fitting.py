@@ -159,3 +159,59 @@ def test_a_zero_right_hand_side_gives_zero_at_once():
     K, _ = normal_equations(verts, w, f, vertices)
     x, its = solve_normal_equations(K, np.zeros(len(vertices)), f[vertices])
     assert its == 0 and not x.any()
+
+
+def test_the_chunks_off_diagonal_sums_add_up_as_one_sparse_sum_at_a_time():
+    """``_sum_in_order`` gives the entries of ``((A + B) + C) + ...`` bit for bit: each entry
+    summed in the matrices' order, on values where another order rounds differently, with
+    sums that cancel to no entry."""
+    import functools
+    import operator
+
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(3)
+    m = 30
+    mats = []
+    for _ in range(9):
+        a = sp.random(m, m, density=0.3, random_state=rng, format="csr")
+        a.data = rng.normal(size=a.nnz) * 10.0 ** rng.integers(-8, 8, a.nnz)
+        mats.append(a)
+    mats.append(-mats[0])  # cancels some entries exactly, where nothing else touched them
+    ref = functools.reduce(operator.add, mats)
+    got = fitting._sum_in_order(mats)
+    ref.sort_indices()
+    assert np.array_equal(got.indptr, ref.indptr) and np.array_equal(got.indices, ref.indices)
+    assert np.array_equal(got.data, ref.data)
+    # the order matters: summed in reverse, some entries round differently
+    rev = fitting._sum_in_order(mats[::-1])
+    assert not np.array_equal(rev.toarray(), ref.toarray())
+
+
+def test_the_normal_equations_over_many_chunks_are_those_of_one_sparse_sum_at_a_time(monkeypatch):
+    """Chunks folded into the running sum a few at a time give the same ``K`` and ``b``, bit for
+    bit, as adding each chunk's sparse matrix to it in turn."""
+    import scipy.sparse as sp
+
+    rng = np.random.default_rng(11)
+    verts, w, f, vertices = random_mesh(rng, N=400, m=50)
+    monkeypatch.setattr(fitting, "CHUNK", 16)
+    monkeypatch.setattr(fitting, "_FOLD", 3)
+    K, b = normal_equations(verts, w, f, vertices)
+    col = fitting._column_map(len(f), vertices)
+    m = len(vertices)
+    diag, b_ref, off = np.zeros(m), np.zeros(m), sp.csr_matrix((m, m))
+    for s in range(0, len(f), 16):
+        c, ws = fitting._chunk(verts, w, col, s, s + 16)
+        diag += np.bincount(c.ravel(), (ws * ws).ravel(), minlength=m)
+        b_ref += np.bincount(c.ravel(), (ws * f[s:s + 16, None]).ravel(), minlength=m)
+        rows, cols, data = [], [], []
+        for i, j in fitting._PAIRS:
+            p = ws[:, i] * ws[:, j]
+            rows.append(c[p > 0, i])
+            cols.append(c[p > 0, j])
+            data.append(p[p > 0])
+        off = off + sp.csr_matrix((np.concatenate(data), (np.concatenate(rows), np.concatenate(cols))), shape=(m, m))
+    K_ref = (off + off.T + sp.diags(diag)).tocsr()
+    assert np.array_equal(b, b_ref)
+    assert np.array_equal(K.toarray(), K_ref.toarray())

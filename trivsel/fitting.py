@@ -35,6 +35,8 @@ RTOL = 1e-12
 CHUNK = 1 << 16
 #: The pairs (a, b), a < b, of a point's 4 weights: the off-diagonal entries of its outer product.
 _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
+#: Chunks whose off-diagonal sums are added to the running sum at once (:func:`_sum_in_order`).
+_FOLD = 32
 
 
 def _column_map(n_points, vertices):
@@ -110,6 +112,7 @@ def _normal_equations(chunks, m):
     columns and weights (as :func:`_chunk` gives them) and values."""
     diag, b = np.zeros(m), np.zeros(m)
     off = sp.csr_matrix((m, m))
+    batch = []
     for c, w, fv in chunks:
         diag += np.bincount(c.ravel(), (w * w).ravel(), minlength=m)
         b += np.bincount(c.ravel(), (w * fv[:, None]).ravel(), minlength=m)
@@ -119,9 +122,38 @@ def _normal_equations(chunks, m):
         cols = np.concatenate([c[k, j] for (_, j), k in zip(_PAIRS, keep)])
         data = np.concatenate([p[k] for p, k in zip(prod, keep)])
         # each unordered pair once (in either orientation); K adds the transpose
-        off = off + sp.csr_matrix((data, (rows, cols)), shape=(m, m))
+        batch.append(sp.csr_matrix((data, (rows, cols)), shape=(m, m)))
+        if len(batch) == _FOLD:
+            off, batch = _sum_in_order([off] + batch), []
+    off = _sum_in_order([off] + batch)
     K = (off + off.T + sp.diags(diag)).tocsr()
     return K, b
+
+
+def _sum_in_order(mats):
+    """``((mats[0] + mats[1]) + mats[2]) + ...`` (canonical CSR matrices of one shape), entry by
+    entry in that order, as the sparse sum one at a time gives it bit for bit, in time linear
+    in the entries: each sum of two takes time in the entries of both, and the running sum
+    grows with every chunk."""
+    if len(mats) == 1:
+        return mats[0]
+    m, n = mats[0].shape
+    key = np.concatenate([np.repeat(np.arange(m, dtype=np.int64), np.diff(a.indptr)) * n + a.indices for a in mats])
+    val = np.concatenate([a.data for a in mats])
+    order = np.argsort(key, kind="stable")  # by entry, each entry's terms in the matrices' order
+    key, val = key[order], val[order]
+    del order
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, np.int64)
+    size = np.diff(np.r_[start, len(key)])
+    total = val[start]
+    for t in range(1, int(size.max()) if len(size) else 0):  # the t-th term of every entry that has one
+        more = np.flatnonzero(size > t)
+        total[more] += val[start[more] + t]
+    key = key[start]
+    nonzero = total != 0  # a sum of 0 is no entry, as in the sparse sum
+    key, total = key[nonzero], total[nonzero]
+    indptr = np.searchsorted(key, np.arange(m + 1, dtype=np.int64) * n)
+    return sp.csr_matrix((total, (key % n).astype(mats[0].indices.dtype), indptr), shape=(m, n))
 
 
 def solve_normal_equations(K, b, x0, *, rtol=RTOL, maxiter=None):

@@ -36,6 +36,7 @@ of each region's mesh); only the step, cut and last jobs hold arrays over the wh
 from __future__ import annotations
 
 import json
+from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -373,12 +374,14 @@ def _step(out, st, p):
     tau, _ = _tau(out)
     limit = _limit(out, st, p)
     tau_p = B.record_limit(kind, tau, None if np.isnan(limit) else limit)
-    caps = B.cost_caps(plan, surplus, share_cap=kind != "seams") if run and st.costed else None
+    caps, whole_caps = B.record_caps(plan, surplus, kind, None if np.isnan(limit) else limit) \
+        if run and st.costed else (None, None)
     _atomic_savez(folder / "plan.npz", order=plan["order"], starts=plan["starts"], ends=plan["ends"],
                   region=plan["region"], left=plan["left"], ran=np.bool_(run),
                   surplus=np.int64(-1 if surplus is None else surplus), tau=np.float64(tau_p),
                   spent=np.float64(spent), budget=np.float64(left), share=np.float64(B.free_share(plan, isv)),
-                  limit=np.float64(limit))
+                  limit=np.float64(limit), caps=np.asarray(caps if caps is not None else [], np.int64),
+                  whole_caps=np.asarray(whole_caps if whole_caps is not None else [], np.int64))
     per = int(dims[1] * dims[2])
     for slab in st.region_slabs(p):
         res = {}
@@ -397,25 +400,35 @@ def _region_inputs(z):
 
 
 def _region_costs(out, st, p, slab):
-    vol, shape = _open(st.cfg), st.plan.shape
+    vol = _open(st.cfg)
     folder = out / "passes" / str(p)
     plan = _load(folder / "plan.npz")
     z = _load(folder / "in" / f"{slab}.npz")
     regions, inp = _region_inputs(z)
     res = {}
     for r in regions:
-        i = inp(r)
-        runmax, sse, (lremoved, linto), result = B.region_decimate(
-            i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
-            quota=int(z[f"cap_{r}"]), costs=True, budget=float(plan.get("budget", INF)))
-        res[f"runmax_{r}"] = runmax
-        res[f"sse_{r}"] = sse
-        res[f"lremoved_{r}"], res[f"linto_{r}"] = lremoved, linto  # replayed where the quota is fewer
-        res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
+        res.update(_region_record(vol, st, plan, inp(r), r, int(z[f"cap_{r}"])))
     _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
 
 
+def _region_record(vol, st, plan, inp, r, cap):
+    """Region ``r``'s record of up to ``cap`` collapses (``inp``: its :func:`region_input`), as
+    the arrays its costs file holds."""
+    shape = st.plan.shape
+    runmax, sse, (lremoved, linto), result = B.region_decimate(
+        inp, shape, _points_values(vol, shape, inp["local"]), tau=float(plan["tau"]), tol_inf=st.cfg.get("tol_inf"),
+        quota=cap, costs=True, budget=float(plan.get("budget", INF)))
+    res = {f"runmax_{r}": runmax, f"sse_{r}": sse}
+    res[f"lremoved_{r}"], res[f"linto_{r}"] = lremoved, linto  # replayed where the quota is fewer
+    res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})  # reused where the quota is all of them
+    return res
+
+
 def _quota(out, st, p):
+    """The pass's quota cut.  The first quota pass derives the cost limit from its records; the
+    regions whose record stopped at its cap at or below the limit are recorded again to the
+    whole cap here, one at a time, into ``again.npz`` (which the apply jobs read after their
+    slab's costs file)."""
     folder = out / "passes" / str(p)
     plan = _load(folder / "plan.npz")
     runmax, sse = {}, {}
@@ -424,15 +437,32 @@ def _quota(out, st, p):
         runmax.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("runmax_")})
         sse.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("sse_")})
     regions = [int(r) for r in plan["region"]]
-    q, added = np.zeros(0, np.int64), 0.0
+    q, added, again = np.zeros(0, np.int64), 0.0, {}
     limit = float(plan.get("limit", float("nan")))
     limit = None if np.isnan(limit) else limit  # none derived yet
     if plan["ran"]:
         sses = [sse.get(r, np.zeros(len(runmax[r]))) for r in regions]  # none in a run begun before they were
         costs = [runmax[r] for r in regions]
         surplus = None if plan["surplus"] < 0 else int(plan["surplus"])
-        cut, limit = B.pass_limit(st.passes[p][0], surplus, limit, costs, float(plan.get("share", 1.0)))
+        kind, share = st.passes[p][0], float(plan.get("share", 1.0))
+        if B.derives_limit(kind, surplus, limit) and len(plan.get("whole_caps", ())) == len(regions):
+
+            def record_again(ks):  # to the whole cap, one at a time
+                vol, per, inputs = _open(st.cfg), int(np.prod(st.region_dims(p)[1:])), {}
+                for k in ks:
+                    r = regions[k]
+                    if r // per not in inputs:
+                        inputs = {r // per: _region_inputs(_load(folder / "in" / f"{r // per}.npz"))[1]}
+                    rec = _region_record(vol, st, plan, inputs[r // per](r), r, int(plan["whole_caps"][k]))
+                    again.update(rec)
+                    sses[k] = rec[f"sse_{r}"]
+                    yield rec[f"runmax_{r}"]
+
+            limit, _ = B.limit_of_whole_records(costs, surplus, share, plan["caps"], plan["whole_caps"],
+                                                record_again)
+        cut, limit = B.pass_limit(kind, surplus, limit, costs, share)
         q, added = B.cut_quota(costs, surplus, sses, float(plan.get("budget", INF)), cut)
+    _atomic_savez(folder / "again.npz", **again)
     _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
                   spent=np.float64(float(plan.get("spent", 0.0)) + added),
                   limit=np.float64(float("nan") if limit is None else limit))
@@ -447,6 +477,8 @@ def _region_apply(out, st, p, slab):
         q = _load(folder / "quota.npz")
         quota = dict(zip(q["region"].tolist(), q["quota"].tolist()))
         recorded = _load(folder / "costs" / f"{slab}.npz")
+        if (folder / "again.npz").exists():  # the regions the quota job recorded again (none in older runs)
+            recorded.update(_load(folder / "again.npz"))
     z = _load(folder / "in" / f"{slab}.npz")
     regions, inp = _region_inputs(z)
     res = {}
@@ -491,16 +523,27 @@ def _finish(out, st):
             yield idx, verts, w, np.all((ijk > 0) & (ijk < hi), axis=1)
 
     data_sums = ErrorSums()
-    for idx, verts, w, inner in chunks():
-        data_sums.add(f[idx] - np.einsum("ij,ij->i", w, f[verts]), inner)
-    errors = data_sums.norms()
-    values = list(cfg.get("values") or ["data"])
-    fit = None
-    if "fit" in values:
-        fitted = fit_in_chunks(lambda: ((v, w, f[i]) for i, v, w, _ in chunks()), N, vertices, f[vertices])
-        fit_sums = ErrorSums()
+
+    def summed():  # the data values' errors, summed on the way through the points
         for idx, verts, w, inner in chunks():
-            fit_sums.add(f[idx] - np.einsum("ij,ij->i", w, fitted[np.searchsorted(vertices, verts)]), inner)
+            data_sums.add(f[idx] - np.einsum("ij,ij->i", w, f[verts]), inner)
+            yield idx, verts, w
+
+    values = list(cfg.get("values") or ["data"])
+    walk, fitted = summed(), None
+    if "fit" in values:  # the fit's sums and the data errors in one walk through the points
+        fitted = fit_in_chunks(lambda: ((v, w, f[i]) for i, v, w in walk), N, vertices, f[vertices])
+    for _ in walk:  # (without a fit)
+        pass
+    errors = data_sums.norms()
+    fit = None
+    if fitted is not None:
+        fit_sums = ErrorSums()
+        at = np.full(N, -1, B.index_type(len(vertices)))  # a vertex's place in ``vertices``
+        at[vertices] = np.arange(len(vertices), dtype=at.dtype)
+        for idx, verts, w, inner in chunks():
+            fit_sums.add(f[idx] - np.einsum("ij,ij->i", w, fitted[at[verts]]), inner)
+        del at
         fit = {"values": fitted, "errors": fit_sums.norms()}
     staged = out / STAGED
     # one piece per block: the tetrahedra whose lowest corner lies in it
@@ -516,14 +559,17 @@ def _finish(out, st):
     pieces = []
     order = np.argsort(piece_of, kind="stable")
     bounds = np.searchsorted(piece_of[order], np.arange(len(plan.blocks()) + 1))
-    for b, blk in enumerate(plan.blocks()):
-        tets = T[order[bounds[b]:bounds[b + 1]]]
-        path = out / "pieces" / f"{item_name(blk)}.vtu"
-        _write_mesh(path, vol, plan.shape, tets, f, fit_at)
-        pieces.append(path)
-    write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
-    if cfg.get("merged", True):
-        _write_mesh(staged / "mesh.vtu", vol, plan.shape, T, f, fit_at)
+    with ThreadPoolExecutor(1) as pool:  # the merged mesh beside the pieces (VTK's writer releases the GIL)
+        merged = pool.submit(_write_mesh, staged / "mesh.vtu", vol, plan.shape, T, f, fit_at) \
+            if cfg.get("merged", True) else None
+        for b, blk in enumerate(plan.blocks()):
+            tets = T[order[bounds[b]:bounds[b + 1]]]
+            path = out / "pieces" / f"{item_name(blk)}.vtu"
+            _write_mesh(path, vol, plan.shape, tets, f, fit_at)
+            pieces.append(path)
+        write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
+        if merged is not None:
+            merged.result()
     tau, _ = _tau(out)
     target = st.target()
     m = len(vertices)
@@ -601,8 +647,8 @@ def job_resources(cfg, plan, kind):
         mem, secs = 2 * JOB_BASE_BYTES, 600
     elif kind == "cut":  # the blocks' costs, and a block recorded again
         mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
-    else:  # quota
-        mem, secs = JOB_BASE_BYTES + 16 * N, 60
+    else:  # quota: the regions' costs, and a region recorded again
+        mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
 
 

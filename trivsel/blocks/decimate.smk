@@ -2,7 +2,7 @@
 #
 #   kernels -> costs (x-slabs of blocks) -> cut -> mesh (x-slabs of blocks) ->
 #   per pass P: step_P (merge the pass before, plan this one) -> [rcosts (x-slabs of regions)
-#   -> quota] -> apply (x-slabs of regions) -> finish
+#   -> quota (and the regions recorded again)] -> apply (x-slabs of regions) -> finish
 #
 # The bracketed stages run with a count or tol_rms (ST.costed): their cut spends the count and
 # the squared-error budget that tau.json and each quota.npz carry on.
@@ -171,9 +171,10 @@ rule rcosts:
 
 rule quota:
     input:
-        lambda wc: region_files(int(wc.p), "costs"),
+        lambda wc: [f"passes/{wc.p}/plan.npz"] + region_files(int(wc.p), "costs") + region_files(int(wc.p), "in"),
     output:
         temp("passes/{p}/quota.npz"),
+        temp("passes/{p}/again.npz"),
     log:
         "logs/quota/{p}.log",
     benchmark:
@@ -190,7 +191,8 @@ rule apply:
     input:
         "passes/{p}/plan.npz",
         "passes/{p}/in/{slab}.npz",
-        lambda wc: [f"passes/{wc.p}/quota.npz", f"passes/{wc.p}/costs/{wc.slab}.npz"] if ST.costed else [],
+        lambda wc: [f"passes/{wc.p}/quota.npz", f"passes/{wc.p}/again.npz", f"passes/{wc.p}/costs/{wc.slab}.npz"]
+        if ST.costed else [],
     output:
         temp("passes/{p}/out/{slab}.npz"),
     log:

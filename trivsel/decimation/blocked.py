@@ -73,7 +73,8 @@ from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
            "short_blocks", "threshold_of_whole_records",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
-           "region_decimate", "cost_caps", "cut_quota", "quota_limit", "free_share", "pass_limit", "record_limit",
+           "region_decimate", "cost_caps", "record_caps", "derives_limit", "short_regions",
+           "limit_of_whole_records", "cut_quota", "quota_limit", "free_share", "pass_limit", "record_limit",
            "merge_pass",
            "decimate_in_blocks", "pass_runs",
            "stop_reason", "quality_note", "point_weights", "point_weights_of", "reduce_in_blocks"]
@@ -119,6 +120,13 @@ RECORD_TAIL, TAIL_STEP = 0.1, 256
 #: their share use that part of the record, and it is the costliest part to take exactly (E_RMS within 0.15 %
 #: on the T1 crop and f4 at 129^3, whole runs on f4 in 0.71-0.79x the time: measured, docs/notes)
 RECORD_EXACT_TO = 1.0
+#: The first quota pass, which derives the quota passes' cost limit (:func:`quota_limit`), records each region
+#: up to this many times its share of the surplus (the later ones: up to twice it, and the limit).  A region
+#: whose record stops there at or below the limit derived is recorded again to twice its share
+#: (:func:`limit_of_whole_records`), so the limit, and the mesh, are those of records to twice the share: the
+#: regions record about half as many collapses (f4 and the T1 crop at 129^3 in blocks of 32: no region needed
+#: recording again; measured, docs/notes)
+FIRST_QUOTA_RECORD = 1
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
 #: A count's run in blocks keeps about one piece's errors down to this fraction of the points in blocks of
@@ -489,14 +497,55 @@ def region_decimate(inp, shape, values, *, tau, tol_inf=None, quota=None, costs=
     return result
 
 
-def cost_caps(plan, surplus, share_cap):
+def cost_caps(plan, surplus, share_cap, times=2):
     """The most collapses each region records for the quota cut: all its free vertices, or
     with ``share_cap`` (the quota passes, no threshold) and a ``surplus`` (None: no count) at
-    most twice its share of ``surplus`` by free vertices."""
+    most ``times`` (an integer) its share of ``surplus`` by free vertices, and 16."""
     nfree = plan["nfree"]
     if not share_cap or surplus is None:
         return nfree
-    return np.minimum(nfree, 2 * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16)
+    return np.minimum(nfree, int(times) * -(-surplus * nfree // max(int(nfree.sum()), 1)) + 16)
+
+
+def record_caps(plan, surplus, kind, limit):
+    """``(caps, whole)``: the most collapses each region of a pass of ``kind`` records
+    (:func:`cost_caps`), and the most that the pass's cut may need, to which a region is recorded
+    again (:func:`limit_of_whole_records`).  The same but in the first quota pass (a count, and no
+    ``limit`` derived yet), which records :data:`FIRST_QUOTA_RECORD` times the share."""
+    whole = cost_caps(plan, surplus, share_cap=kind != "seams")
+    if derives_limit(kind, surplus, limit):
+        return cost_caps(plan, surplus, True, times=FIRST_QUOTA_RECORD), whole
+    return whole, whole
+
+
+def derives_limit(kind, surplus, limit):
+    """Whether a pass of ``kind`` derives the quota passes' cost limit (:func:`pass_limit`): the
+    first quota pass of a count (``surplus`` not None), while none is (``limit`` None)."""
+    return kind == "quota" and surplus is not None and limit is None
+
+
+def short_regions(runmax, caps, whole, limit):
+    """The regions whose record (its running maxima) stopped at its cap (``caps``) short of the
+    ``whole`` one, at or below the cost ``limit``: past a record's end every cost is at least its
+    last, so the others' longer records would add only costs above the limit."""
+    return [k for k, (r, c, w) in enumerate(zip(runmax, caps, whole))
+            if c < w and len(r) == c and (not len(r) or r[-1] <= limit)]
+
+
+def limit_of_whole_records(runmax, surplus, share, caps, whole, record_again):
+    """:func:`quota_limit` of records cut at ``caps`` as of records to ``whole``: the regions that
+    :func:`short_regions` names are recorded again by ``record_again(regions)`` (their running
+    maxima, in order; ``runmax`` is updated in place) and the limit is taken again; once at most,
+    since the limit only falls.  Returns the limit and the regions recorded again."""
+    caps, again_all = list(caps), []
+    while True:
+        limit = quota_limit(runmax, surplus, share)
+        again = short_regions(runmax, caps, whole, limit)
+        if not again:
+            return limit, again_all
+        for k, r in zip(again, record_again(again)):
+            runmax[k], caps[k] = r, whole[k]
+        again_all += again
 
 
 def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
@@ -545,10 +594,10 @@ def pass_limit(kind, surplus, limit, runmax, share):
     inherited ``limit``, or, while none is (None), derives it from its own recorded costs
     (``runmax``) and its regions' ``share`` of the vertices (:func:`quota_limit`, :func:`free_share`);
     every other pass cuts without one and hands the inherited limit on."""
-    if kind != "quota" or surplus is None:
-        return INF, limit
-    if limit is None:
+    if derives_limit(kind, surplus, limit):
         limit = quota_limit(runmax, surplus, share)
+    elif kind != "quota" or surplus is None:
+        return INF, limit
     return limit, limit
 
 
@@ -761,11 +810,20 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     _SHARED["region"] = sh = dict(plan=plan, T=T, owner=owner, tau=tau, tol_inf=tol_inf, quota=None, caps=None,
                                   budget=budget, recorded={})
     whole = {}  # the regions whose quota is every collapse they recorded: that run's result
-    spent, cut = 0.0, INF
+    spent, cut, again = 0.0, INF, []
     if costed:
-        sh["caps"] = cost_caps(plan, surplus, share_cap=kind != "seams")
+        sh["caps"], whole_caps = record_caps(plan, surplus, kind, limit)
         recorded = list(_map(_region_costs, runs, threads))
         runmax = [r for r, _, _, _ in recorded]
+        if derives_limit(kind, surplus, limit):  # from records as long as the later passes' (whole_caps)
+            def record_again(regions):
+                sh["caps"] = whole_caps
+                for k, rec in zip(regions, _map(_region_costs, regions, threads)):
+                    recorded[k] = rec
+                    yield rec[0]
+
+            limit, again = limit_of_whole_records(runmax, surplus, free_share(plan, isv), sh["caps"], whole_caps,
+                                                  record_again)
         cut, limit = pass_limit(kind, surplus, limit, runmax, free_share(plan, isv))
         sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _, _ in recorded], budget, cut)
         whole = {k: res for k, (r, _, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
@@ -777,7 +835,7 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
                                             "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent,
-                                            "limit": cut, "limit_after": limit}
+                                            "limit": cut, "limit_after": limit, "recorded_again": len(again)}
 
 
 def _region(k):
@@ -834,7 +892,14 @@ def point_weights(shape, tets, ptet):
 
 def point_weights_of(shape, tets, ptet, points):
     """:func:`point_weights` of the grid points ``points`` only (global indices), so that a
-    caller can go through the grid in chunks."""
+    caller can go through the grid in chunks.
+
+    With ``d_j = q_j - x`` (corner j less the point), the weights are the signed volumes
+    with x in each slot in turn, exact integers from two cross products::
+
+        l0 = d1 . (d2 x d3)     l1 = -d0 . (d2 x d3)
+        l2 = d3 . (d0 x d1)     l3 = -d2 . (d0 x d1)
+    """
     points = np.asarray(points, np.int64)
     verts = np.repeat(points[:, None], 4, axis=1)
     w = np.zeros((len(points), 4))
@@ -842,20 +907,30 @@ def point_weights_of(shape, tets, ptet, points):
     inside = np.flatnonzero(ptet[points] >= 0)
     for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
         corners = tets[ptet[points[part]]]
-        q = np.stack(np.unravel_index(corners, shape), axis=-1)  # (k, 4, 3)
-        x = np.stack(np.unravel_index(points[part], shape), axis=-1)
-        lam = np.stack([_det(q[:, 1] - x, q[:, 2] - x, q[:, 3] - x),
-                        _det(x - q[:, 0], q[:, 2] - q[:, 0], q[:, 3] - q[:, 0]),
-                        _det(q[:, 1] - q[:, 0], x - q[:, 0], q[:, 3] - q[:, 0]),
-                        _det(q[:, 1] - q[:, 0], q[:, 2] - q[:, 0], x - q[:, 0])], axis=1)
+        x = _grid_coordinates(points[part], shape)
+        q = _grid_coordinates(corners.astype(np.int64, copy=False), shape)
+        d = [[q[a][:, j] - x[a] for a in range(3)] for j in range(4)]
+        c23, c01 = _cross(d[2], d[3]), _cross(d[0], d[1])
+        lam = np.stack([_dot(d[1], c23), -_dot(d[0], c23), _dot(d[3], c01), -_dot(d[2], c01)], axis=1)
         verts[part] = corners
         w[part] = lam / lam.sum(axis=1, keepdims=True)
     return verts, w
 
 
-def _det(u, v, w):
-    """Row-wise integer ``det[u, v, w]``."""
-    return np.einsum("ij,ij->i", np.cross(u, v), w)
+def _grid_coordinates(p, shape):
+    """The grid coordinates (three int64 arrays) of the C-order point indices ``p``."""
+    yz = int(shape[1]) * int(shape[2])
+    i, r = np.divmod(p, yz)
+    j, k = np.divmod(r, int(shape[2]))
+    return i, j, k
+
+
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+
+
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
 def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=("data",), interior=None,
