@@ -27,7 +27,7 @@ whole process timed by ``/usr/bin/time`` after ``trivsel compile --method decima
 after the first on a machine finds the kernels): on the whole T1 (``--jobs t1``, converted to Zarr
 first) or on function 4 (``--jobs f4 --size 257``), to each ``--fractions`` (or ``--count``).
 Prints the wall time, the largest process's peak memory (every job is a process of its own),
-the largest job by Snakemake's benchmark files, the count and the errors::
+the largest job by Snakemake's benchmark files, the count and the errors, then the job seconds by rule::
 
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --fractions 0.05
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --count 362160
@@ -181,15 +181,21 @@ def jobs(source, size, block, fraction=None, count=None, keep=None, rms=None):
         raise SystemExit(p.stderr[-2000:])
     wall = p.stderr.split("Elapsed (wall clock) time (h:mm:ss or m:ss): ")[1].split()[0]
     peak = int(re.search(r"Maximum resident set size \(kbytes\): (\d+)", p.stderr).group(1)) / 2**20
-    rows = []
+    rows, by_rule = [], {}
     for tsv in (out / "benchmarks").rglob("*.tsv"):
         vals = tsv.read_text().splitlines()[1].split("\t")
-        rows.append((float(vals[2]), str(tsv.relative_to(out / "benchmarks").with_suffix(""))))
+        name = str(tsv.relative_to(out / "benchmarks").with_suffix(""))
+        rows.append((float(vals[2]), name))
+        rule = by_rule.setdefault(name.split("/")[0], [0, 0.0])
+        rule[0] += 1
+        rule[1] += float(vals[0])
     job_mb, job = max(rows)
     s = json.loads((out / "summary.json").read_text())
     target = f"{s['target']:,}" if s["target"] is not None else f"tol_rms {s['tol_rms']:g}"
     print(f"| {source} {s['points']:,} points | {block} | {target} | {s['vertices']:,} | {wall} | {peak:.2f} | "
           f"{job} {job_mb / 1024:.2f} | {s['E_rms']:.4g} | {s['fit']['E_rms']:.4g} | {s['E_inf']:.4g} |", flush=True)
+    print("  job seconds by rule (jobs): " + ", ".join(f"{rule} {sec:.1f} ({n})" for rule, (n, sec) in
+                                                      sorted(by_rule.items(), key=lambda kv: -kv[1][1])), flush=True)
 
 
 def phases(source, block, fraction):

@@ -456,9 +456,8 @@ def region_input(plan, T, owner, k):
     inside = plan["pts"][a:z]
     tg = T[rows]
     verts = np.unique(tg)
-    local = np.concatenate([verts, inside])  # vertices first, then the points inside
-    order_local = np.argsort(local)
-    tl = order_local[np.searchsorted(local[order_local], tg)]
+    local = np.concatenate([verts, inside])  # vertices first (sorted), then the points inside
+    tl = np.searchsorted(verts, tg)  # a corner's place among the vertices is its local index
     located = np.full(len(local), -1, np.int64)
     located[len(verts):] = plan["row_of"][owner[inside]]
     return {"local": local, "tets": tl, "located": located, "locked": ~plan["free"][local]}
