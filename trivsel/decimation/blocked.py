@@ -123,9 +123,10 @@ RECORD_EXACT_TO = 1.0
 #: The first quota pass, which derives the quota passes' cost limit (:func:`quota_limit`), records each region
 #: up to this many times its share of the surplus (the later ones: up to twice it, and the limit).  A region
 #: whose record stops there at or below the limit derived is recorded again to twice its share
-#: (:func:`limit_of_whole_records`), so the limit, and the mesh, are those of records to twice the share: the
-#: regions record about half as many collapses (f4 and the T1 crop at 129^3 in blocks of 32: no region needed
-#: recording again; measured, docs/notes)
+#: (:func:`limit_of_whole_records`), so the limit, and the mesh, are those of records to twice the share.  The
+#: pass took 0.93x the time on the T1 crop at 129^3 (none recorded again) and about 0.65x on f4 at 257^3; on
+#: the whole T1, whose background regions end below the limit, 7 of 13 were recorded again and it took 1.24x,
+#: 1.02x the whole run (measured, docs/notes)
 FIRST_QUOTA_RECORD = 1
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
