@@ -61,14 +61,16 @@ def _planes(P, Q, sc, n, G):
 @njit(cache=True, _nrt=False)
 def _gather(S, sc, n, Q):
     """Copy the star's tets (corners ``sc[:n]``) into ``Q`` and its buckets' points into
-    ``S.pbuf`` (``S.phome``: the star index of each point's tet), in star order; returns the
+    ``S.pbuf`` (``S.phome``: the star index of each point's tet), in star order, and mark
+    their neighbours across faces (``S.X``, ``_across``) as not yet looked for; returns the
     number of points and the sum of their squared residuals."""
-    T, phead, pnext, res, pbuf, phome = S.T, S.phead, S.pnext, S.res, S.pbuf, S.phome
+    T, phead, pnext, res, pbuf, phome, X = S.T, S.phead, S.pnext, S.res, S.pbuf, S.phome, S.X
     m = 0
     old = 0.0
     for i in range(n):
         t = sc[i] >> 2
         Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = T[t, 0], T[t, 1], T[t, 2], T[t, 3]
+        X[i, 0], X[i, 1], X[i, 2], X[i, 3] = -2, -2, -2, -2
         p = phead[t]
         while p >= 0:
             old += res[p] * res[p]
@@ -451,9 +453,6 @@ def _best(S, v, sc, G, mark, tol_inf):
     Q, kw = S.Q, S.kw
     # the squared residuals that the collapse replaces (v's own is 0)
     m, old = _gather(S, sc, n, Q)
-    for _i in range(n):
-        for _j in range(4):
-            S.X[_i, _j] = -2
     nb = 0
     if S.lock[v] & LOCK_MESH:  # on a mesh's boundary: its boundary triangles (``_allowed``)
         nb = _boundary_faces(Q, sc, n, v, S.B)
@@ -490,9 +489,6 @@ def _collapse(S, v, w, sc, n):
     ``_cost`` located them."""
     T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
     m, _ = _gather(S, sc, n, Q)
-    for _i in range(n):
-        for _j in range(4):
-            S.X[_i, _j] = -2
     flt = S.ctr[C_FLOAT] != 0
     if not flt:
         _planes(P, Q, sc, n, S.G)
