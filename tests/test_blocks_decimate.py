@@ -164,6 +164,45 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     assert "step_6" in capfd.readouterr().out and not (tmp_path / "dry").exists()
 
 
+def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, monkeypatch):
+    """A local run is refused when any of its jobs needs more than is available, ``quota`` (a
+    region's decimation and the regions' costs) and ``cut`` as well as the others; the block
+    size it names runs every job within what is available."""
+    import trivsel.resources as res
+    from trivsel.blocks import decimate as D
+    from trivsel.exceptions import InputError
+
+    shape = (197, 233, 189)
+    full = {"block": 64, "fraction": 0.05, "values": ["data", "fit"], "plan": D.plan_decimation(shape, 64).to_dict()}
+    st = D.Stages(full, D.plan_decimation(shape, 64))
+    assert sorted(st.job_kinds()) == sorted(["kernels", "costs", "cut", "mesh", "step", "rcosts", "quota", "apply",
+                                             "finish"])
+    mb = {k: D.job_resources(full, st.plan, k)[0] for k in st.job_kinds()}
+    assert max(mb, key=mb.get) == "quota"
+    avail = (max(v for k, v in mb.items() if k != "quota") + mb["quota"]) // 2 * 2**20  # all but quota fit
+    monkeypatch.setattr(res, "available_bytes", lambda: avail)
+    with pytest.raises(InputError, match=r"^a quota job of decimate in blocks of 64 needs about 2.5\d* GiB, more than "
+                                         r"the 2.4\d* GiB available: use --block 48$"):
+        D.check_job_memory(full)
+    p48 = D.plan_decimation(shape, 48)
+    cfg48 = {**full, "block": 48, "plan": p48.to_dict()}
+    assert all(D.job_resources(cfg48, p48, k)[0] * 2**20 <= avail for k in D.Stages(cfg48, p48).job_kinds())
+    D.check_job_memory(cfg48)
+    # a tolerance alone has no cut or quota: its largest job is the last one, which no block size helps
+    tol = {**full, "fraction": None, "tol_inf": 1.0}
+    assert "quota" not in D.Stages(tol, st.plan).job_kinds()
+    monkeypatch.setattr(res, "available_bytes", lambda: 4 * 2**30)
+    with pytest.raises(InputError, match=r"^a finish job .* run it on a larger machine or a cluster$"):
+        D.check_job_memory(tol)
+    # from the command line: one line, exit 2, no run folder
+    monkeypatch.setattr(res, "available_bytes", lambda: 64 * 2**20)
+    out = tmp_path / "run"
+    assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
+                 "--out", str(out)]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "job of decimate in blocks of 16 needs about" in err and not out.exists(), err
+
+
 def test_files_of_a_run_begun_before_errors_were_recorded_read_as_no_error_spent(tmp_path):
     """A counted run begun by a version that recorded no squared errors, resumed by this one:
     its costs, ``tau.json`` and ``quota.npz`` have no errors, and read as none spent (that run

@@ -106,24 +106,26 @@ def make_config(config, shape):
 
 
 def check_job_memory(full):
-    """One-line InputError when a job of this run needs more memory than is available here (a
-    local run), naming a block size that fits."""
+    """One-line InputError when a job of this run, of any kind it has (:meth:`Stages.job_kinds`),
+    needs more memory than is available here (a local run), naming a block size whose jobs all fit."""
     from ..exceptions import InputError
     from ..resources import available_bytes
 
     avail = available_bytes()
     if avail is None:
         return
-    plan = Plan.from_dict(full["plan"])
-    kinds = ("costs", "rcosts", "step", "finish")
-    need = {k: job_resources(full, plan, k)[0] * 2**20 for k in kinds}
+
+    def needs(block):
+        cfg = {**full, "block": block}
+        plan = plan_decimation(Plan.from_dict(full["plan"]).shape, block)
+        return {k: job_resources(cfg, plan, k)[0] * 2**20 for k in Stages(cfg, plan).job_kinds()}
+
+    need = needs(int(full["block"]))
     kind = max(need, key=need.get)
     if need[kind] <= avail:
         return
-    fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(
-        job_resources({**full, "block": b}, plan_decimation(plan.shape, b), k)[0] for k in ("costs", "rcosts"))
-        * 2**20 <= avail]
-    fix = (f"use --block {fits[0]}" if fits and kind in ("costs", "rcosts")
+    fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(needs(b).values()) <= avail]
+    fix = (f"use --block {fits[0]}" if fits
            else "the whole grid's arrays do not fit: run it on a larger machine or a cluster")
     raise InputError(f"a {kind} job of decimate in blocks of {full['block']} needs about "
                      f"{need[kind] / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB available: {fix}")
@@ -158,6 +160,12 @@ class Stages:
         self.slabs = list(range(plan.counts[0]))
         self.passes = [(kind, off) for kind, off in B.passes(self.block) if self.costed or kind == "seams"]
         self.size = B.REGION * self.block
+
+    def job_kinds(self):
+        """The kinds of job this run has (the rules of ``decimate.smk`` it runs): ``cut``,
+        ``rcosts`` and ``quota`` when it cuts recorded costs (:attr:`costed`), the others always."""
+        kinds = ["kernels", "costs", "mesh", "step", "apply", "finish"]
+        return kinds + (["cut", "rcosts", "quota"] if self.costed else [])
 
     def budget(self):
         """The squared error the run may spend (:func:`trivsel.decimation.blocked.sse_budget`)."""
