@@ -5,6 +5,12 @@ The method, its drawings and its invariants are described in :mod:`trivsel.decim
 is the Python face of these kernels and imports this module only when it runs them with
 numba's just-in-time compiler; otherwise :mod:`trivsel.aot` loads the same functions compiled
 ahead of time (:func:`aot_exports` names them), and this module and numba are never imported.
+
+The functions called once per candidate or per point of a star (``_cost``, ``_locate_star``,
+``_value_moved``) are inlined by numba (``inline='always'``): a call passes each array argument
+as several machine words, the state ``S`` as a few hundred, which costs more than the
+arithmetic of the call.  The rare ends of a walk (a point on a face, an edge or a vertex:
+``_on_boundary``, ``_scan``) stay calls, so that the inlined copies stay small.
 """
 
 from __future__ import annotations
@@ -98,7 +104,7 @@ def _where(z0, z1, z2, z3):
     return -22
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def _value_moved(P, flt, f, Q, G, sc, i, w, p):
     """Whether p lies in star tet ``Q[i]`` with v's slot holding w, and the linear
     interpolant of the vertex values there (eq. 13): ``(where, L)``, ``where`` -1 if p is
@@ -190,7 +196,7 @@ def _across(Q, sc, X, n, i, j):
     return k
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def _locate_star(P, flt, f, Q, G, sc, kw, X, n, w, p, hint):
     """Where p lies once v has moved onto w: ``(i, L)`` for the star tet ``Q[i]`` that keeps
     w (``kw[i]`` false) and holds p, ``(-1, 0)`` if none does.  The tet is the one a scan
@@ -239,41 +245,54 @@ def _locate_star(P, flt, f, Q, G, sc, kw, X, n, w, p, hint):
         j, val = _value_moved(P, flt, f, Q, G, sc, i, w, p)
         if j == -1:
             return i, val
-        if j < -5 and j > -22:
-            # on the edge opposite slots a < b: every tet of the edge holds p, the first in
-            # scan order is taken (an edge through w: every moved tet with its other end)
-            a = (-6 - j) >> 2
-            b = (-6 - j) & 3
-            s = sc[i] & 3
-            c = 0
-            while c == a or c == b or c == s:
-                c += 1
-            x = Q[i, c]
-            y = -1
-            if a == s or b == s:
-                d = c + 1
-                while d == a or d == b or d == s:
-                    d += 1
-                y = Q[i, d]
-            for k in range(i):
-                if k != hint and not kw[k] and _has(Q, k, x) and (y < 0 or _has(Q, k, y)):
-                    where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
-                    if where < 0:
-                        return k, v2
-            return i, val
-        if j < -1 and j > -6:
-            # on one face: the tet across it (if that face is not the star's boundary) holds p too
-            j = -2 - j
-            if j != sc[i] & 3:
-                k = _across(Q, sc, X, n, i, j)
-                if 0 <= k < i and not kw[k]:
-                    where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
-                    if where < 0:
-                        return k, v2
-            return i, val
-        if j == -22:
-            # on a vertex: the scan below finds the first of its tets (i at the latest)
-            break
+        if j < -1:
+            return _on_boundary(P, flt, f, Q, G, sc, kw, X, n, w, p, hint, i, j, val)
+    return _scan(P, flt, f, Q, G, sc, kw, n, w, p, hint)
+
+
+@njit(cache=True, _nrt=False)
+def _on_boundary(P, flt, f, Q, G, sc, kw, X, n, w, p, hint, i, j, val):
+    """The end of ``_locate_star``'s walk where it reached star tet i with p on its boundary
+    (``j < -1``, as ``_where`` says)."""
+    if j < -5 and j > -22:
+        # on the edge opposite slots a < b: every tet of the edge holds p, the first in
+        # scan order is taken (an edge through w: every moved tet with its other end)
+        a = (-6 - j) >> 2
+        b = (-6 - j) & 3
+        s = sc[i] & 3
+        c = 0
+        while c == a or c == b or c == s:
+            c += 1
+        x = Q[i, c]
+        y = -1
+        if a == s or b == s:
+            d = c + 1
+            while d == a or d == b or d == s:
+                d += 1
+            y = Q[i, d]
+        for k in range(i):
+            if k != hint and not kw[k] and _has(Q, k, x) and (y < 0 or _has(Q, k, y)):
+                where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
+                if where < 0:
+                    return k, v2
+        return i, val
+    if j > -6:
+        # on one face: the tet across it (if that face is not the star's boundary) holds p too
+        j = -2 - j
+        if j != sc[i] & 3:
+            k = _across(Q, sc, X, n, i, j)
+            if 0 <= k < i and not kw[k]:
+                where, v2 = _value_moved(P, flt, f, Q, G, sc, k, w, p)
+                if where < 0:
+                    return k, v2
+        return i, val
+    # on a vertex: the scan finds the first of its tets (i at the latest)
+    return _scan(P, flt, f, Q, G, sc, kw, n, w, p, hint)
+
+
+@njit(cache=True, _nrt=False)
+def _scan(P, flt, f, Q, G, sc, kw, n, w, p, hint):
+    """``_locate_star``'s scan: the first star tet, the hint excepted, that keeps w and holds p."""
     for i in range(n):
         if i == hint or kw[i]:
             continue
@@ -389,7 +408,7 @@ def _allowed(S, v, w, B, nb):
     return True
 
 
-@njit(cache=True, _nrt=False)
+@njit(cache=True, _nrt=False, inline='always')
 def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
     """``(key, delta, shared)`` if v moves onto w (v's star gathered by ``_gather``: tets
     ``Q[:n]``, their planes ``G``, bucket points ``S.pbuf[:m]``): ``delta`` the change of the
