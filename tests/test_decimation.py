@@ -270,6 +270,31 @@ def test_any_grid_and_values_give_a_valid_mesh(shape, seed, kind, keep, key, laz
     assert np.allclose(dec.residuals(), brute_force_residuals(data.ijk, data.values, T), atol=1e-9)
 
 
+@pytest.mark.parametrize("shape, lock, key, tol_inf, levels", [
+    ((7, 6, 5), "box", "sse", None, 0), ((7, 6, 5), "box", "sse", None, 3), ((6, 6, 6), "all", "max", None, 2),
+    ((5, 4, 6), "box", "sse", 0.6, 3), ((3, 3, 3), "box", "max", None, 0), ((2, 5, 4), "box", "sse", None, 2)])
+def test_a_fresh_grid_is_queued_from_its_template_as_by_every_vertex_evaluated(shape, lock, key, tol_inf, levels):
+    """``init_grid`` (an interior vertex's first evaluation from one template) queues every
+    vertex as ``init`` (``_best`` of each) does, bit for bit: keys, changes of the sum,
+    targets and the tie rule's degrees.  Values with few levels make many keys tie."""
+    from trivsel.decimation import kernels, new_state
+
+    rng = np.random.default_rng(sum(shape) + levels)
+    n = int(np.prod(shape))
+    values = rng.integers(0, levels, n).astype(float) if levels else rng.normal(size=n)
+    ijk = np.indices(shape).reshape(3, -1).T
+    tol = -1.0 if tol_inf is None else tol_inf
+    a, b = (new_state(ijk, shape, values, lock=lock, key=key) for _ in range(2))
+    kernels(a).init(a, tol)
+    kernels(b).init_grid(b, tol, *shape)
+    for name in ("hkey", "hsse", "htgt", "hdeg", "hpos", "hv"):
+        assert np.array_equal(getattr(a, name), getattr(b, name)), name
+    assert a.ctr[2] == b.ctr[2] and a.ctr[2] > 0  # the same number queued, some
+    if min(shape) >= 3:  # interior vertices with a valid collapse exist, and the template found them
+        interior = np.all((ijk > 0) & (ijk < np.array(shape) - 1), axis=1)
+        assert np.isfinite(a.hkey[interior]).any()
+
+
 def test_lazy_updates_leave_a_valid_mesh_and_an_exact_queue_when_switched_off():
     """With lazy updates a changed vertex keeps its stale cost (marked) until it reaches the head
     of the queue; switching them off re-evaluates every marked vertex, after which the queue is

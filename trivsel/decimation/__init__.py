@@ -346,7 +346,9 @@ class Decimation:
         self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
         self._k = kernels(self.S)
-        if queue:
+        if queue and state is None:  # a fresh Kuhn split: interior vertices from one template
+            self._k.init_grid(self.S, self.tol_inf, *(int(n) for n in shape))
+        elif queue:
             self._k.init(self.S, self.tol_inf)
         else:  # for replay only: no collapse is costed
             self._k.link(self.S)

@@ -106,7 +106,7 @@ def _where(z0, z1, z2, z3):
 
 @njit(cache=True, _nrt=False, inline='always')
 def _value_moved(P, flt, f, Q, G, sc, i, w, p):
-    """Whether p lies in star tet ``Q[i]`` with v's slot holding w, and the linear
+    r"""Whether p lies in star tet ``Q[i]`` with v's slot holding w, and the linear
     interpolant of the vertex values there (eq. 13): ``(where, L)``, ``where`` -1 if p is
     strictly inside, less if on its boundary (``_where`` says where), else the slot whose weight is negative (the tet's face opposite it
     separates p from the tet).
@@ -638,6 +638,112 @@ def _init(S, tol_inf):
 
 
 @njit(cache=True, _nrt=False)
+def _grid_template(S, v0, D, O, L, SH):
+    """The first evaluation of an interior vertex of a fresh Kuhn split, taken from one of
+    them, v0: every interior vertex's star is v0's moved by an index offset, its tets in the
+    same star order, and no point lies in a tet yet.  For each neighbour w of v0 (``D[k] =
+    w - v0``) in star order, as ``_cost`` finds it: 0 if v0 may not move onto w (a moved tet
+    would not keep a positive volume), else 1, with the tet of the moved star that holds v0
+    (its corners as offsets ``O[k]`` from v0, w in v0's slot), v0's integer weights in it
+    ``L[k]`` (the orientations with v0 in each slot) and the count ``SH[k]`` of v0's tets
+    that contain w.  Returns the number of neighbours and their flags (``SH[k] < 0``: not
+    valid)."""
+    P, f, Q, G, kw, sc, mark = S.P, S.f, S.Q, S.G, S.kw, S.sc, S.mark
+    n = _star(S, v0, sc)
+    _gather(S, sc, n, Q)
+    _planes(P, Q, sc, n, G)
+    S.stamp[0] += 1
+    stamp = S.stamp[0]
+    mark[v0] = stamp
+    K = 0
+    for i in range(n):
+        for j in range(4):
+            w = Q[i, j]
+            if mark[w] == stamp:
+                continue
+            mark[w] = stamp
+            D[K] = w - v0
+            SH[K] = -1
+            shared = 0
+            valid = True
+            for t in range(n):
+                h = _has(Q, t, w)
+                kw[t] = h
+                if h:
+                    shared += 1
+                elif G[t, 0] * P[w, 0] + G[t, 1] * P[w, 1] + G[t, 2] * P[w, 2] + G[t, 3] <= 0:
+                    valid = False
+                    break
+            if valid and shared > 0:
+                t, _ = _locate_star(P, False, f, Q, G, sc, kw, S.X, n, w, v0, -1)
+                if t >= 0:
+                    s = sc[t] & 3
+                    q0 = w if s == 0 else Q[t, 0]
+                    q1 = w if s == 1 else Q[t, 1]
+                    q2 = w if s == 2 else Q[t, 2]
+                    q3 = w if s == 3 else Q[t, 3]
+                    O[K, 0], O[K, 1], O[K, 2], O[K, 3] = q0 - v0, q1 - v0, q2 - v0, q3 - v0
+                    L[K, 0] = _orient(P, False, v0, q1, q2, q3)
+                    L[K, 1] = _orient(P, False, q0, v0, q2, q3)
+                    L[K, 2] = _orient(P, False, q0, q1, v0, q3)
+                    L[K, 3] = _orient(P, False, q0, q1, q2, v0)
+                    SH[K] = shared
+            K += 1
+    return K
+
+
+@njit(cache=True, _nrt=False)
+def _best_by_template(S, v, K, D, O, L, SH, tol_inf):
+    """``_best`` of an interior vertex v of a fresh Kuhn split from v0's template
+    (``_grid_template``): the same interpolated value (eq. 13, the same weights in the same
+    slot order), key, tie rule and degrees, without gathering v's star."""
+    f, deg = S.f, S.deg
+    use_max = S.ctr[C_MAXKEY] != 0
+    n = deg[v]
+    best, bw, be, bd = INF, -1, 0, INF
+    for k in range(K):
+        if SH[k] < 0:
+            continue
+        w = v + D[k]
+        l0, l1, l2, l3 = L[k, 0], L[k, 1], L[k, 2], L[k, 3]
+        val = (l0 * f[v + O[k, 0]] + l1 * f[v + O[k, 1]] + l2 * f[v + O[k, 2]] + l3 * f[v + O[k, 3]]) \
+            / (l0 + l1 + l2 + l3)
+        r = f[v] - val
+        if 0.0 <= tol_inf < abs(r):
+            continue
+        delta = r * r - 0.0
+        c = abs(r) if use_max else delta
+        e = deg[w] + n - 2 * SH[k]
+        if c < best or (c == best and (e < be or (e == be and w < bw))):
+            best, bw, be, bd = c, w, e, delta
+    return best, bw, be, bd
+
+
+@njit(cache=True)
+def _init_grid(S, tol_inf, nx, ny, nz):
+    """``_init`` of a fresh Kuhn split of an ``nx x ny x nz`` grid (points in C order): the
+    interior vertices that may move are evaluated from one template (``_grid_template``),
+    the others by ``_best``; the same queue."""
+    _link_all(S)
+    N = S.P.shape[0]
+    D = np.zeros(64, np.int64)
+    O = np.zeros((64, 4), np.int64)
+    L = np.zeros((64, 4))  # integers, held exactly
+    SH = np.zeros(64, np.int64)
+    K = -1
+    v0 = (ny + 1) * nz + 1
+    if nx >= 3 and ny >= 3 and nz >= 3 and S.deg[v0] <= 24:
+        K = _grid_template(S, v0, D, O, L, SH)
+    for v in range(N):
+        i, j, k = v // (ny * nz), (v // nz) % ny, v % nz
+        if K >= 0 and 0 < i < nx - 1 and 0 < j < ny - 1 and 0 < k < nz - 1 and S.lock[v] == 0:
+            key, x, d, delta = _best_by_template(S, v, K, D, O, L, SH, tol_inf)
+        else:
+            key, x, d, delta = _best(S, v, S.sc, S.G, S.mark, tol_inf)
+        _queue(S, v, key, x, d, delta)
+
+
+@njit(cache=True, _nrt=False)
 def _run(S, stop_count, sse_max, key_max, tol_inf):
     """Collapse until ``stop_count`` vertices remain (0), the cheapest collapse would take the
     squared-residual sum above ``sse_max`` or has a key above ``key_max`` (2), or no valid
@@ -767,13 +873,14 @@ def _weights(S):
 
 def aot_exports(state_type):
     """The kernels that :class:`~trivsel.decimation.Decimation` calls from Python, by the
-    names it calls them (``init``, ``link``, ``run``, ``replay``, ``flush``, ``weights``), each with its signature
+    names it calls them (``init``, ``init_grid``, ``link``, ``run``, ``replay``, ``flush``, ``weights``), each with its signature
     for ``state_type`` (the numba type of a :class:`~trivsel.decimation.State`); everything
     else is compiled into their machine code."""
     from numba import types as nt
 
     f8, i8 = nt.float64, nt.int64
     return {"init": (_init, nt.none(state_type, f8)),
+            "init_grid": (_init_grid, nt.none(state_type, f8, i8, i8, i8)),
             "link": (_link_all, nt.none(state_type)),
             "replay": (_replay, i8(state_type, i8[::1], i8[::1], i8)),
             "run": (_run, i8(state_type, i8, f8, f8, f8)),
