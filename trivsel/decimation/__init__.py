@@ -337,17 +337,21 @@ class Decimation:
     the collapses: ``"sse"`` by the change of the squared-residual sum (aims at E_RMS),
     ``"max"`` by the largest |residual| of the points that move (aims at E_inf).  ``lazy``
     starts with lazy updates of the queue (the module's docstring); :attr:`lazy` switches.
+    ``state``: a state made elsewhere (:func:`new_state` or :func:`new_mesh_state`); ``grid``:
+    that state's grid shape when it is :func:`new_state`'s fresh Kuhn split (lock bits may
+    differ), whose interior vertices are then first evaluated from one template.
     """
 
     def __init__(self, ijk, shape, values, *, tol_inf=None, lock="box", key="sse", lazy=False, state=None,
-                 queue=True):
+                 queue=True, grid=None):
         self.tol_inf = -1.0 if tol_inf is None else float(tol_inf)
         self.S = new_state(ijk, shape, values, lock=lock, key=key, lazy=lazy) if state is None else state
         self.S.acc[0] = float(np.sum(self.S.res ** 2))
         self.compactions = 0
         self._k = kernels(self.S)
-        if queue and state is None:  # a fresh Kuhn split: interior vertices from one template
-            self._k.init_grid(self.S, self.tol_inf, *(int(n) for n in shape))
+        grid = shape if state is None else grid  # a fresh Kuhn split: interior vertices from one template
+        if queue and grid is not None:
+            self._k.init_grid(self.S, self.tol_inf, *(int(n) for n in grid))
         elif queue:
             self._k.init(self.S, self.tol_inf)
         else:  # for replay only: no collapse is costed

@@ -213,7 +213,7 @@ def _block_run(values, lo, shape, seam_axes, fraction, tol_inf, key_max, tol_rms
     sequence short (a collapse of a positive cost was left)."""
     start = time.perf_counter()
     S, gid, seam = _block_state(values, lo, shape, seam_axes)
-    dec = Decimation(None, None, None, tol_inf=tol_inf, state=S)
+    dec = Decimation(None, None, None, tol_inf=tol_inf, state=S, grid=values.shape)
     share = (~seam).sum() * fraction  # its locked seam points stay
     near_sse = INF if tol_rms is None else float(tol_rms) ** 2 * len(gid) / EXACT_WITHIN ** 2
     if dec.run(int(seam.sum() + EXACT_WITHIN * share), sse_max=near_sse, key_max=key_max) == 1:
