@@ -642,12 +642,11 @@ def _grid_template(S, v0, D, O, L, SH):
     """The first evaluation of an interior vertex of a fresh Kuhn split, taken from one of
     them, v0: every interior vertex's star is v0's moved by an index offset, its tets in the
     same star order, and no point lies in a tet yet.  For each neighbour w of v0 (``D[k] =
-    w - v0``) in star order, as ``_cost`` finds it: 0 if v0 may not move onto w (a moved tet
-    would not keep a positive volume), else 1, with the tet of the moved star that holds v0
-    (its corners as offsets ``O[k]`` from v0, w in v0's slot), v0's integer weights in it
-    ``L[k]`` (the orientations with v0 in each slot) and the count ``SH[k]`` of v0's tets
-    that contain w.  Returns the number of neighbours and their flags (``SH[k] < 0``: not
-    valid)."""
+    w - v0``), as ``_cost`` finds it: ``SH[k] = -1`` if v0 may not move onto w (a moved tet
+    would not keep a positive volume), else the count of v0's tets that contain w, with the
+    tet of the moved star that holds v0 (its corners as offsets ``O[k]`` from v0, w in v0's
+    slot) and v0's integer weights in it ``L[k]`` (the orientations with v0 in each slot).
+    Returns the number of neighbours."""
     P, f, Q, G, kw, sc, mark = S.P, S.f, S.Q, S.G, S.kw, S.sc, S.mark
     n = _star(S, v0, sc)
     _gather(S, sc, n, Q)
@@ -732,7 +731,7 @@ def _init_grid(S, tol_inf, nx, ny, nz):
     SH = np.zeros(64, np.int64)
     K = -1
     v0 = (ny + 1) * nz + 1
-    if nx >= 3 and ny >= 3 and nz >= 3 and S.deg[v0] <= 24:
+    if nx >= 3 and ny >= 3 and nz >= 3 and S.deg[v0] == 24:  # the Kuhn split's star: 24 tets, 14 neighbours
         K = _grid_template(S, v0, D, O, L, SH)
     for v in range(N):
         i, j, k = v // (ny * nz), (v // nz) % ny, v % nz
