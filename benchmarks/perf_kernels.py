@@ -2,6 +2,7 @@
 
     python benchmarks/perf_kernels.py                             # decimate, aniso to 10 %
     python benchmarks/perf_kernels.py --volume icbm152 --fraction 0.05
+    python benchmarks/perf_kernels.py --volume icbm152 --crop 65 --fraction 0.05 --hot 30
     python benchmarks/perf_kernels.py --method greedy --n 64      # f4 on 65^3 to 10 %
 
 The run uses numba's just-in-time kernels (``TRIVSEL_AOT=0``: the same functions and LLVM IR
@@ -30,10 +31,12 @@ WORKLOAD = r'''
 import sys, time
 import numba
 import trivsel
-method, source, fraction, out = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4]
+method, source, fraction, out, crop = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 if method == "decimate":
-    from trivsel.study.realdata import load_volume
+    from trivsel.study.realdata import REAL, central_crop, load_nifti, load_volume, package_file
     small, data = load_volume(source, quick=True), load_volume(source)
+    if crop:  # the central crop of the whole volume (the study's volumes are crops already)
+        data = central_crop(load_nifti(package_file(*REAL[source][:2]), source), crop)
 else:
     small, data = trivsel.sample_grid(4, 8), trivsel.sample_grid(4, int(source))
 trivsel.reduce(small, fractions=[0.5], method=method)  # compile
@@ -81,6 +84,7 @@ def main(argv=None):
     ap.add_argument("--method", default="decimate", choices=["decimate", "greedy", "paper"])
     ap.add_argument("--volume", default="aniso", help="decimate: a volume of trivsel.study.realdata")
     ap.add_argument("--n", type=int, default=64, help="greedy, paper: f4 on an (n+1)^3 grid")
+    ap.add_argument("--crop", type=int, default=0, help="decimate: the central crop^3 of the whole volume (0: the study's volume)")
     ap.add_argument("--fraction", type=float, default=0.1)
     ap.add_argument("--hot", type=int, default=0, help="also print the N hottest offsets of the hottest function")
     a = ap.parse_args(argv)
@@ -89,7 +93,7 @@ def main(argv=None):
         env = dict(os.environ, NUMBA_CACHE_DIR=str(Path(tmp) / "cache"), TRIVSEL_AOT="0")
         data = Path(tmp) / "perf.data"
         subprocess.run(["perf", "record", "-q", "-o", str(data), sys.executable, "-c", WORKLOAD, a.method, source,
-                        str(a.fraction), tmp], env=env, check=True)
+                        str(a.fraction), tmp, str(a.crop)], env=env, check=True)
         ips = subprocess.run(["perf", "script", "-i", str(data), "-F", "ip"], capture_output=True, text=True,
                              check=True).stdout.split()
         rows = sorted((int(x, 16), label, name) for x, label, name in
