@@ -117,16 +117,14 @@ RECORD_FLOOR = 0.25
 RECORD_TAIL, TAIL_STEP = 0.1, 256
 #: A block's record takes its collapses with exact costs from EXACT_WITHIN times its share of the count down to
 #: this part of its share, and with the lazy queue again below it: only the blocks that the threshold takes past
-#: their share use that part of the record, and it is the costliest part to take exactly (E_RMS within 0.15 %
-#: on the T1 crop and f4 at 129^3, whole runs on f4 in 0.71-0.79x the time: measured, docs/notes)
+#: their share use that part of the record, and it is the costliest part to take exactly (the trade of error
+#: against time is measured in docs/notes)
 RECORD_EXACT_TO = 1.0
 #: The first quota pass, which derives the quota passes' cost limit (:func:`quota_limit`), records each region
 #: up to this many times its share of the surplus (the later ones: up to twice it, and the limit).  A region
 #: whose record stops there at or below the limit derived is recorded again to twice its share
-#: (:func:`limit_of_whole_records`), so the limit, and the mesh, are those of records to twice the share.  The
-#: pass took 0.93x the time on the T1 crop at 129^3 (none recorded again) and about 0.65x on f4 at 257^3; on
-#: the whole T1, whose background regions end below the limit, 7 of 13 were recorded again and it took 1.24x,
-#: 1.02x the whole run (measured, docs/notes)
+#: (:func:`limit_of_whole_records`), so the limit, and the mesh, are those of records to twice the share.  A
+#: trade: regions whose records end below the limit (a volume's background) are recorded twice (docs/notes)
 FIRST_QUOTA_RECORD = 1
 #: The budget is ``tol_rms^2 N`` less this relative margin, for the rounding of sums taken in another order
 SSE_MARGIN = 1e-9
