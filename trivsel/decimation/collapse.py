@@ -66,18 +66,25 @@ def _planes(P, Q, sc, n, G):
 
 @njit(cache=True, _nrt=False)
 def _gather(S, sc, n, Q):
-    """Copy the star's tets (corners ``sc[:n]``) into ``Q`` and its buckets' points into
-    ``S.pbuf`` (``S.phome``: the star index of each point's tet), in star order, and mark
-    their neighbours across faces (``S.X``, ``_across``) as not yet looked for; returns the
-    number of points and the sum of their squared residuals."""
-    T, phead, pnext, res, pbuf, phome, X = S.T, S.phead, S.pnext, S.res, S.pbuf, S.phome, S.X
-    m = 0
-    old = 0.0
+    """Copy the star's tets (corners ``sc[:n]``) into ``Q`` and mark their neighbours across
+    faces (``S.X``, ``_across``) as not yet looked for."""
+    T, X = S.T, S.X
     for i in range(n):
         t = sc[i] >> 2
         Q[i, 0], Q[i, 1], Q[i, 2], Q[i, 3] = T[t, 0], T[t, 1], T[t, 2], T[t, 3]
         X[i, 0], X[i, 1], X[i, 2], X[i, 3] = -2, -2, -2, -2
-        p = phead[t]
+
+
+@njit(cache=True, _nrt=False)
+def _gather_points(S, sc, n):
+    """Copy the points of the star's buckets (corners ``sc[:n]``) into ``S.pbuf``
+    (``S.phome``: the star index of each point's tet), in star order; returns their number
+    and the sum of their squared residuals."""
+    phead, pnext, res, pbuf, phome = S.phead, S.pnext, S.res, S.pbuf, S.phome
+    m = 0
+    old = 0.0
+    for i in range(n):
+        p = phead[sc[i] >> 2]
         while p >= 0:
             old += res[p] * res[p]
             pbuf[m] = p
@@ -409,16 +416,11 @@ def _allowed(S, v, w, B, nb):
 
 
 @njit(cache=True, _nrt=False, inline='always')
-def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
-    """``(key, delta, shared)`` if v moves onto w (v's star gathered by ``_gather``: tets
-    ``Q[:n]``, their planes ``G``, bucket points ``S.pbuf[:m]``): ``delta`` the change of the
-    squared-residual sum, ``key`` that change or, with the max criterion, the largest
-    |residual| of the points that move (v and its buckets' points); the key is inf if the
-    collapse is invalid (a tet would not keep a positive volume), takes a residual above
-    ``tol_inf`` (negative: no limit) or cannot beat ``bound``.  ``shared``: the number of
-    v's tets that contain w.  Sets ``kw[:n]`` (which tets contain w)."""
-    P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
-    flt = S.ctr[C_FLOAT] != 0
+def _moved_star(P, flt, Q, G, sc, kw, n, w):
+    """Whether v may move onto w (v's star gathered: tets ``Q[:n]``, their planes ``G``): the
+    number of v's tets that contain w (they vanish), or -1 if another tet would not keep a
+    positive volume with w in v's slot.  Sets ``kw`` (which tets contain w) up to the first
+    tet that fails."""
     shared = 0
     wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
     for i in range(n):
@@ -431,52 +433,65 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
             s = sc[i] & 3
             if _orient(P, True, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
                        w if s == 3 else Q[i, 3]) <= 0.0:
-                return INF, INF, shared
+                return -1
         elif G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
-            return INF, INF, shared
-    if shared == 0:
-        return INF, INF, shared
+            return -1
+    return shared
+
+
+@njit(cache=True, _nrt=False, inline='always')
+def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
+    """``(key, delta)`` if v moves onto w, a move ``_moved_star`` allowed (``kw[:n]`` set by
+    it; the star's bucket points ``S.pbuf[:m]``, the sum of their squared residuals ``old``):
+    ``delta`` the change of the squared-residual sum, ``key`` that change or, with the max
+    criterion, the largest |residual| of the points that move (v and its buckets' points);
+    the key is inf if a point is in no moved tet, takes a residual above ``tol_inf``
+    (negative: no limit) or cannot beat ``bound``."""
+    P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
+    flt = S.ctr[C_FLOAT] != 0
     i, val = _locate_star(P, flt, f, Q, G, sc, kw, S.X, n, w, v, -1)
     if i < 0:
-        return INF, INF, shared
+        return INF, INF
     r = f[v] - val
     if 0.0 <= tol_inf < abs(r):
-        return INF, INF, shared
+        return INF, INF
     new = r * r
     mx = abs(r)
     for k in range(m):
         # the rest only adds: no better than the best so far
         if (mx if use_max else new - old) > bound:
-            return INF, INF, shared
+            return INF, INF
         p = pbuf[k]
         i, val = _locate_star(P, flt, f, Q, G, sc, kw, S.X, n, w, p, phome[k])
         if i < 0:
-            return INF, INF, shared
+            return INF, INF
         r = f[p] - val
         if 0.0 <= tol_inf < abs(r):
-            return INF, INF, shared
+            return INF, INF
         new += r * r
         mx = max(mx, abs(r))
-    return (mx if use_max else new - old), new - old, shared
+    return (mx if use_max else new - old), new - old
 
 
 @njit(cache=True, _nrt=False)
 def _best(S, v, sc, G, mark, tol_inf):
     """v's cheapest valid collapse ``(key, w, tets of w after, change of the squared-residual
     sum)`` over its neighbours w (ties: fewer tets around w, then the smaller w);
-    ``(inf, -1, 0, inf)`` if none."""
+    ``(inf, -1, 0, inf)`` if none.  The star's bucket points are gathered only once a
+    neighbour passes ``_moved_star``: most vertices with no valid collapse never need them."""
     n = _star(S, v, sc)
     best, bw, be, bd = INF, -1, 0, INF
     if n < 0:
         return best, bw, be, bd
-    Q, kw = S.Q, S.kw
-    # the squared residuals that the collapse replaces (v's own is 0)
-    m, old = _gather(S, sc, n, Q)
+    Q, kw, P = S.Q, S.kw, S.P
+    flt = S.ctr[C_FLOAT] != 0
+    _gather(S, sc, n, Q)
+    m, old = -1, 0.0  # the squared residuals that the collapse replaces (v's own is 0), once gathered
     nb = 0
     if S.lock[v] & LOCK_MESH:  # on a mesh's boundary: its boundary triangles (``_allowed``)
         nb = _boundary_faces(Q, sc, n, v, S.B)
-    if S.ctr[C_FLOAT] == 0:
-        _planes(S.P, Q, sc, n, G)
+    if not flt:
+        _planes(P, Q, sc, n, G)
     use_max = S.ctr[C_MAXKEY] != 0
     S.stamp[0] += 1
     stamp = S.stamp[0]
@@ -492,7 +507,12 @@ def _best(S, v, sc, G, mark, tol_inf):
             mark[w] = stamp
             if not S.isv[w] or not _allowed(S, v, w, S.B, nb):
                 continue
-            c, delta, shared = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
+            shared = _moved_star(P, flt, Q, G, sc, kw, n, w)
+            if shared <= 0:
+                continue
+            if m < 0:
+                m, old = _gather_points(S, sc, n)
+            c, delta = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
@@ -507,7 +527,8 @@ def _collapse(S, v, w, sc, n):
     and put v and the points of v's buckets into the tets that now hold them, located as
     ``_cost`` located them."""
     T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
-    m, _ = _gather(S, sc, n, Q)
+    _gather(S, sc, n, Q)
+    m, _ = _gather_points(S, sc, n)
     flt = S.ctr[C_FLOAT] != 0
     if not flt:
         _planes(P, Q, sc, n, S.G)
@@ -663,17 +684,8 @@ def _grid_template(S, v0, D, O, L, SH):
             mark[w] = stamp
             D[K] = w - v0
             SH[K] = -1
-            shared = 0
-            valid = True
-            for t in range(n):
-                h = _has(Q, t, w)
-                kw[t] = h
-                if h:
-                    shared += 1
-                elif G[t, 0] * P[w, 0] + G[t, 1] * P[w, 1] + G[t, 2] * P[w, 2] + G[t, 3] <= 0:
-                    valid = False
-                    break
-            if valid and shared > 0:
+            shared = _moved_star(P, False, Q, G, sc, kw, n, w)
+            if shared > 0:
                 t, _ = _locate_star(P, False, f, Q, G, sc, kw, S.X, n, w, v0, -1)
                 if t >= 0:
                     s = sc[t] & 3
