@@ -11,7 +11,9 @@ the box (:func:`trivsel.blocks.check_tetrahedra`) with every point inside its te
 ratios blocked / unblocked of E_RMS with data values, E_RMS with fitted values (least squares
 on each mesh, :func:`trivsel.fitting.fit_vertex_values`) and E_inf with data values, and the
 seconds of both.  ``t1`` is the central crop of the ICBM152 2009a T1 (nilearn's wheel: the
-``realdata`` extra), ``f4`` the paper's function 4 sampled on the same number of points.
+``realdata`` extra), ``gm`` the same crop of the template's grey-matter probability map (a
+signal of another kind: smooth, with bands of steep change), ``f4`` the paper's function 4
+sampled on the same number of points.
 ``--tol-rms`` compares at one tolerance instead: the unblocked run to each fraction, its E_RMS
 (data values) the tolerance of the blocked run (``tol_rms``: a squared-error budget its stages
 share).  Prints the blocked run's count against the unblocked one's, its E_RMS against the
@@ -66,10 +68,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 
 def volume(name, size):
-    if name == "t1":
+    if name in ("t1", "gm"):
         from bench_cli import t1_crop
 
-        d = t1_crop(size)
+        d = t1_crop(size, "icbm152" if name == "t1" else "gm")
     else:
         from trivsel.data import sample_grid
 
@@ -299,7 +301,8 @@ def record_exact(name, vol, block, fraction, threads):
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop) or fN (function N)")
+    ap.add_argument("--volumes", nargs="+", default=["t1", "f4"], help="t1 (the T1 crop), gm (the same crop of the "
+                    "template's grey-matter probability map) or fN (function N)")
     ap.add_argument("--size", type=int, default=65, help="points per axis")
     ap.add_argument("--block", type=int, default=32, help="grid intervals per block")
     ap.add_argument("--fractions", type=float, nargs="+", default=[0.05, 0.1])

@@ -118,15 +118,16 @@ def run(cmd, env=None):
         return seconds, r.stdout, int(peak.read_text()) / 2**20
 
 
-def t1_crop(size):
-    """The central ``size``^3 crop of the ICBM152 2009a T1 template (1 mm, nilearn's wheel)."""
+def t1_crop(size, name="icbm152"):
+    """The central ``size``^3 crop of the ICBM152 2009a T1 template (1 mm, nilearn's wheel), or
+    of another real volume of trivsel.study.realdata (``name``; "gm", its grey-matter map)."""
     from trivsel.study.realdata import REAL, central_crop, load_nifti, package_file
 
-    package, rel, _ = REAL["icbm152"]
+    package, rel, _ = REAL[name]
     path = package_file(package, rel)
     if path is None:
-        raise SystemExit(f"the ICBM152 T1 needs {package}: pip install -e '.[realdata]'")
-    return central_crop(load_nifti(path, "icbm152"), size)
+        raise SystemExit(f"the volume {name} needs {package}: pip install -e '.[realdata]'")
+    return central_crop(load_nifti(path, name), size)
 
 
 def main(argv=None):

@@ -295,6 +295,46 @@ def test_a_fresh_grid_is_queued_from_its_template_as_by_every_vertex_evaluated(s
         assert np.isfinite(a.hkey[interior]).any()
 
 
+@pytest.mark.parametrize("mesh, key, lazy, tol_inf", [
+    ("grid", "sse", True, None), ("grid", "sse", False, None), ("grid", "max", True, None),
+    ("grid", "sse", True, 0.8), ("scattered", "sse", True, None), ("scattered", "max", False, None)])
+def test_a_collapse_from_the_places_its_evaluation_kept_is_the_collapse_located_again(mesh, key, lazy, tol_inf):
+    """``_collapse`` takes the tets and residuals that the evaluation just before it kept
+    (``State.LT``, ``LR``) instead of locating v and its star's points again: the run is the
+    same to the bit as one whose evaluations keep nothing (zero-width ``LT``, ``LR``), and
+    many collapses (most, with lazy updates) did follow their own evaluation."""
+    from trivsel.decimation import new_mesh_state, new_state
+    from trivsel.decimation import C_KEPT, C_LAST
+    from trivsel.decimation.tetmesh import start_mesh
+
+    rng = np.random.default_rng(7)
+    if mesh == "grid":
+        shape = (11, 10, 9)
+        values = (np.sin(np.indices(shape).sum(axis=0) / 3.0) + rng.normal(0, 0.3, shape)).ravel()
+        ijk = np.indices(shape).reshape(3, -1).T
+        states = [new_state(ijk, shape, values, key=key, lazy=lazy) for _ in range(2)]
+    else:
+        pts = rng.random((600, 3))
+        values = np.sin(4 * pts[:, 0]) * np.cos(3 * pts[:, 1]) + pts[:, 2] ** 2
+        t0, located, _ = start_mesh(trivsel.scattered(pts, values))
+        states = [new_mesh_state(pts, t0, values, located=located, key=key, lazy=lazy) for _ in range(2)]
+    kept, plain = states
+    plain = plain._replace(LT=plain.LT[:, :0], LR=plain.LR[:, :0])
+    runs = []
+    for S in (kept, plain):
+        dec = Decimation(None, None, None, tol_inf=tol_inf, key=key, state=S)
+        dec.run(len(values) // 8)
+        runs.append(dec)
+    a, b = runs
+    assert len(a.removed()) > len(values) // 2
+    assert np.array_equal(a.removed(), b.removed()) and np.array_equal(a.into(), b.into())
+    assert np.array_equal(a.tetrahedra(), b.tetrahedra())
+    assert np.array_equal(a.residuals(), b.residuals()) and a.sse == b.sse
+    assert np.array_equal(a.S.ptet, b.S.ptet)
+    assert b.S.ctr[C_LAST] == -1 and b.S.ctr[C_KEPT] == 0  # nothing kept without room
+    assert a.S.ctr[C_KEPT] > (0.5 if lazy else 0.02) * len(a.removed())
+
+
 def test_lazy_updates_leave_a_valid_mesh_and_an_exact_queue_when_switched_off():
     """With lazy updates a changed vertex keeps its stale cost (marked) until it reaches the head
     of the queue; switching them off re-evaluates every marked vertex, after which the queue is

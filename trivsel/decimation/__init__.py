@@ -35,7 +35,9 @@ the linear interpolant of eq. 13 there.
   if still the cheapest).  That saves most evaluations (about 13 vertices change per
   collapse) but lets some changed vertices wait behind their stale cost, so
   :func:`reduce_by_collapse` collapses lazily only while far from where it stops, and
-  in the exact greedy order near it.
+  in the exact greedy order near it.  A collapse right after its vertex's evaluation
+  takes the tetrahedra and residuals that the evaluation found for the moved points
+  (``State.LT``, ``LR``) instead of locating them again.
 * **Stop**: at a vertex count, before the collapse that would take E_RMS above a
   tolerance, or when no collapse keeps every residual within an E_inf tolerance.
 
@@ -69,6 +71,9 @@ INT32_CORNERS = 2**31
 POOL_ROOM = 1.5
 #: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
 STAR_CAPACITY = 1 << 16
+#: The most points of a star whose places an evaluation keeps for the collapse that may follow it
+#: (``State.LT``, ``State.LR``); a star with more has them located again by the collapse
+KEEP_POINTS = 1 << 12
 
 
 def grid_tetrahedra(shape):
@@ -114,7 +119,13 @@ class State(NamedTuple):
                       queued); htgt[v] the target of v's cheapest collapse
         removed[k]    the k-th vertex removed, into[k] the vertex it moved onto
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
-                      the max criterion, lazy updates, the corner pool's top]
+                      the max criterion, lazy updates, the corner pool's top, float
+                      coordinates, the vertex whose best collapse LT/LR hold (-1: none),
+                      their row, its star's point count, the collapses made from them]
+        LT, LR        for the last evaluated vertex v and its cheapest collapse: the tet
+                      and the residual of v (column 0) and of each point of its star's
+                      buckets, in ``pbuf`` order, as the collapse will place them (two rows:
+                      the best candidate's and the one being costed)
         scratch       sc a star's corners, Q their tets' vertices, G their far faces'
                       planes, kw whether each holds the target being tried, X[i, j]
                       the star tet across tet i's face opposite its slot j, B the
@@ -159,9 +170,16 @@ class State(NamedTuple):
     aff: np.ndarray
     acc: np.ndarray
     ctr: np.ndarray
+    LT: np.ndarray
+    LR: np.ndarray
 
 
-C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP, C_FLOAT = 0, 1, 2, 3, 4, 5, 6
+C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP, C_FLOAT, C_LAST, C_LROW, C_LM, C_KEPT = 0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10
+
+
+def _kept_places():
+    """Empty ``State.LT`` and ``State.LR``."""
+    return np.zeros((2, KEEP_POINTS), np.int64), np.zeros((2, KEEP_POINTS))
 
 #: The module of the compiled kernels, and the sources their machine code depends on
 KERNELS = "trivsel.decimation.collapse"
@@ -231,7 +249,8 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  kw=np.zeros(STAR_CAPACITY, np.bool_), X=np.full((STAR_CAPACITY, 4), -2, np.int64), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                 ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum(), 0], np.int64))
+                 ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum(), 0, -1, 0, 0, 0], np.int64),
+                 LT=_kept_places()[0], LR=_kept_places()[1])
 
 
 def _det3(u, v, w):
@@ -324,7 +343,9 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
                  kw=np.zeros(STAR_CAPACITY, np.bool_), X=np.full((STAR_CAPACITY, 4), -2, np.int64), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
                  stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
-                 ctr=np.array([int(isv.sum()), 0, 0, key == "max", bool(lazy), cap.sum(), ijk is None], np.int64))
+                 ctr=np.array([int(isv.sum()), 0, 0, key == "max", bool(lazy), cap.sum(), ijk is None, -1, 0, 0, 0],
+                              np.int64),
+                 LT=_kept_places()[0], LR=_kept_places()[1])
 
 
 class Decimation:
@@ -429,7 +450,7 @@ class Decimation:
 
     #: The fields only collapses use: the queue, the corner pool and the scratch arrays.
     QUEUE_FIELDS = ("cpool", "vstart", "vcap", "deg", "hv", "hpos", "hkey", "hsse", "htgt", "hdeg", "mark", "dirty",
-                    "pbuf", "phome", "aff")
+                    "pbuf", "phome", "aff", "LT", "LR")
 
     def release_queue(self):
         """Free what only further collapses would use (:attr:`QUEUE_FIELDS`, about half the

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import C_FLOAT, C_HN, C_LAZY, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL, LOCK_MESH
+from . import C_FLOAT, C_HN, C_KEPT, C_LAST, C_LAZY, C_LM, C_LROW, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL, LOCK_MESH
 from ..predicates import orient3d_robust, orient3d_value
 
 # ----------------------------------------------------------------------------- geometry
@@ -440,21 +440,26 @@ def _moved_star(P, flt, Q, G, sc, kw, n, w):
 
 
 @njit(cache=True, _nrt=False, inline='always')
-def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
+def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max, row):
     """``(key, delta)`` if v moves onto w, a move ``_moved_star`` allowed (``kw[:n]`` set by
     it; the star's bucket points ``S.pbuf[:m]``, the sum of their squared residuals ``old``):
     ``delta`` the change of the squared-residual sum, ``key`` that change or, with the max
     criterion, the largest |residual| of the points that move (v and its buckets' points);
     the key is inf if a point is in no moved tet, takes a residual above ``tol_inf``
-    (negative: no limit) or cannot beat ``bound``."""
-    P, f, pbuf, phome = S.P, S.f, S.pbuf, S.phome
+    (negative: no limit) or cannot beat ``bound``.  Row ``row`` of ``S.LT``, ``S.LR`` gets
+    each point's tet and residual, when they hold all ``m + 1``."""
+    P, f, pbuf, phome, LT, LR = S.P, S.f, S.pbuf, S.phome, S.LT, S.LR
     flt = S.ctr[C_FLOAT] != 0
+    keep = m < LT.shape[1]
     i, val = _locate_star(P, flt, f, Q, G, sc, kw, S.X, n, w, v, -1)
     if i < 0:
         return INF, INF
     r = f[v] - val
     if 0.0 <= tol_inf < abs(r):
         return INF, INF
+    if keep:
+        LT[row, 0] = sc[i] >> 2
+        LR[row, 0] = r
     new = r * r
     mx = abs(r)
     for k in range(m):
@@ -468,6 +473,9 @@ def _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, bound, use_max):
         r = f[p] - val
         if 0.0 <= tol_inf < abs(r):
             return INF, INF
+        if keep:
+            LT[row, k + 1] = sc[i] >> 2
+            LR[row, k + 1] = r
         new += r * r
         mx = max(mx, abs(r))
     return (mx if use_max else new - old), new - old
@@ -478,9 +486,12 @@ def _best(S, v, sc, G, mark, tol_inf):
     """v's cheapest valid collapse ``(key, w, tets of w after, change of the squared-residual
     sum)`` over its neighbours w (ties: fewer tets around w, then the smaller w);
     ``(inf, -1, 0, inf)`` if none.  The star's bucket points are gathered only once a
-    neighbour passes ``_moved_star``: most vertices with no valid collapse never need them."""
+    neighbour passes ``_moved_star``: most vertices with no valid collapse never need them.
+    The cheapest collapse's point places are kept (``S.LT``, ``S.LR``, ``ctr[C_LAST]`` = v)
+    for ``_collapse``, which often follows at once."""
     n = _star(S, v, sc)
     best, bw, be, bd = INF, -1, 0, INF
+    S.ctr[C_LAST] = -1
     if n < 0:
         return best, bw, be, bd
     Q, kw, P = S.Q, S.kw, S.P
@@ -499,6 +510,7 @@ def _best(S, v, sc, G, mark, tol_inf):
     # v's last target first: it is often still the best, and a good first bound prunes the
     # others early (the argmin, ties included, does not depend on the order)
     first = S.htgt[v]
+    row, brow = 0, 0  # the row of S.LT, S.LR being costed, and the best candidate's
     for i in range(-1, n):
         for j in range(1 if i < 0 else 4):
             w = first if i < 0 else Q[i, j]
@@ -512,12 +524,15 @@ def _best(S, v, sc, G, mark, tol_inf):
                 continue
             if m < 0:
                 m, old = _gather_points(S, sc, n)
-            c, delta = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max)
+            c, delta = _cost(S, v, w, sc, Q, G, kw, n, m, tol_inf, old, best, use_max, row)
             if c == INF:
                 continue
             e = S.deg[w] + n - 2 * shared
             if c < best or (c == best and (e < be or (e == be and w < bw))):
                 best, bw, be, bd = c, w, e, delta
+                brow, row = row, 1 - row
+    if bw >= 0 and m < S.LT.shape[1]:
+        S.ctr[C_LAST], S.ctr[C_LROW], S.ctr[C_LM] = v, brow, m
     return best, bw, be, bd
 
 
@@ -525,23 +540,39 @@ def _best(S, v, sc, G, mark, tol_inf):
 def _collapse(S, v, w, sc, n):
     """Move v onto w (v's corners ``sc[:n]``): drop the tets of edge vw, give w the others
     and put v and the points of v's buckets into the tets that now hold them, located as
-    ``_cost`` located them."""
+    ``_cost`` located them.  When the last evaluation was v's and nothing has changed since
+    (``ctr[C_LAST]`` = v), its gathered star and the places it kept for w are taken as they
+    are: the same tets and residuals, found once."""
     T, P, f, Q, kw, pbuf, res = S.T, S.P, S.f, S.Q, S.kw, S.pbuf, S.res
-    _gather(S, sc, n, Q)
-    m, _ = _gather_points(S, sc, n)
-    flt = S.ctr[C_FLOAT] != 0
-    if not flt:
-        _planes(P, Q, sc, n, S.G)
-    for i in range(n):
-        kw[i] = _has(Q, i, w)
-    # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
-    for k in range(-1, m):
-        p = v if k < 0 else pbuf[k]
-        i, val = _locate_star(P, flt, f, Q, S.G, sc, kw, S.X, n, w, p, -1 if k < 0 else S.phome[k])
-        S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
-        r = f[p] - val
-        S.acc[0] += r * r - res[p] * res[p]
-        res[p] = r
+    kept = S.ctr[C_LAST] == v and S.htgt[v] == w
+    S.ctr[C_LAST] = -1
+    if kept:  # Q, pbuf (and sc) as ``_best`` gathered them
+        S.ctr[C_KEPT] += 1
+        m, row = S.ctr[C_LM], S.ctr[C_LROW]
+        for i in range(n):
+            kw[i] = _has(Q, i, w)
+        for k in range(-1, m):
+            p = v if k < 0 else pbuf[k]
+            S.ptet[p] = S.LT[row, k + 1]
+            r = S.LR[row, k + 1]
+            S.acc[0] += r * r - res[p] * res[p]
+            res[p] = r
+    else:
+        _gather(S, sc, n, Q)
+        m, _ = _gather_points(S, sc, n)
+        flt = S.ctr[C_FLOAT] != 0
+        if not flt:
+            _planes(P, Q, sc, n, S.G)
+        for i in range(n):
+            kw[i] = _has(Q, i, w)
+        # locate with the tets still as they were (``_locate_star`` reads v's slot as w)
+        for k in range(-1, m):
+            p = v if k < 0 else pbuf[k]
+            i, val = _locate_star(P, flt, f, Q, S.G, sc, kw, S.X, n, w, p, -1 if k < 0 else S.phome[k])
+            S.ptet[p] = sc[i] >> 2  # i >= 0: the collapse was checked by _cost
+            r = f[p] - val
+            S.acc[0] += r * r - res[p] * res[p]
+            res[p] = r
     for i in range(n):
         c = sc[i]
         t = c >> 2
@@ -761,6 +792,7 @@ def _run(S, stop_count, sse_max, key_max, tol_inf):
     collapse is left (1).  With lazy updates, a marked vertex at the head of the queue is
     re-evaluated before anything else."""
     sc, aff, mark = S.sc, S.aff, S.mark
+    S.ctr[C_LAST] = -1  # whatever the caller did between two runs, no kept places are trusted
     while S.ctr[C_NV] > stop_count:
         if S.ctr[C_HN] == 0:
             return 1
@@ -809,6 +841,7 @@ def _replay(S, vs, ws, start):
     computed and no queue kept.  Returns how many are made in all: fewer than ``len(vs)``
     when the corner pool lacks room (compact it and call again from there)."""
     sc = S.sc
+    S.ctr[C_LAST] = -1
     for k in range(start, vs.shape[0]):
         v, w = vs[k], ws[k]
         if S.ctr[C_PTOP] + 4 * (S.deg[w] + S.deg[v]) + 16 > S.cpool.shape[0]:
