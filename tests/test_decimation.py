@@ -18,7 +18,7 @@ from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import grid_from_array
 from trivsel.decimation import INF, Decimation, grid_tetrahedra, reduce_by_collapse
-from trivsel.decimation.collapse import _best, _gather, _locate_star, _planes, _star, _value_moved
+from trivsel.decimation.collapse import _best, _gather, _gather_points, _locate_star, _planes, _star, _value_moved
 
 
 def _value_in(P, f, q0, q1, q2, q3, p):
@@ -220,7 +220,8 @@ def test_the_walk_finds_the_tet_a_scan_finds_first(fraction):
     located = on_boundary = 0
     for v in np.flatnonzero(S.hpos >= 0):
         n = _star(S, v, sc)
-        m, _ = _gather(S, sc, n, Q)
+        _gather(S, sc, n, Q)
+        m, _ = _gather_points(S, sc, n)
         _planes(S.P, Q, sc, n, G)
         for w in np.unique(Q[:n]):
             if w == v or not S.isv[w] or any(S.lock[v] >> a & 1 and S.P[w, a] != S.P[v, a] for a in range(3)):
