@@ -34,9 +34,9 @@ import trivsel
 method, source, fraction, out, crop = sys.argv[1], sys.argv[2], float(sys.argv[3]), sys.argv[4], int(sys.argv[5])
 if method == "decimate":
     from trivsel.study.realdata import REAL, central_crop, load_nifti, load_volume, package_file
-    small, data = load_volume(source, quick=True), load_volume(source)
-    if crop:  # the central crop of the whole volume (the study's volumes are crops already)
-        data = central_crop(load_nifti(package_file(*REAL[source][:2]), source), crop)
+    small = load_volume(source, quick=True)
+    # the central crop of the whole volume, or the study's volume (a crop already)
+    data = central_crop(load_nifti(package_file(*REAL[source][:2]), source), crop) if crop else load_volume(source)
 else:
     small, data = trivsel.sample_grid(4, 8), trivsel.sample_grid(4, int(source))
 trivsel.reduce(small, fractions=[0.5], method=method)  # compile

@@ -304,8 +304,7 @@ def test_a_collapse_from_the_places_its_evaluation_kept_is_the_collapse_located_
     (``State.LT``, ``LR``) instead of locating v and its star's points again: the run is the
     same to the bit as one whose evaluations keep nothing (zero-width ``LT``, ``LR``), and
     many collapses (most, with lazy updates) did follow their own evaluation."""
-    from trivsel.decimation import new_mesh_state, new_state
-    from trivsel.decimation import C_KEPT, C_LAST
+    from trivsel.decimation import C_KEPT, C_LAST, new_mesh_state, new_state
     from trivsel.decimation.tetmesh import start_mesh
 
     rng = np.random.default_rng(7)

@@ -178,8 +178,8 @@ C_NV, C_NREM, C_HN, C_MAXKEY, C_LAZY, C_PTOP, C_FLOAT, C_LAST, C_LROW, C_LM, C_K
 
 
 def _kept_places():
-    """Empty ``State.LT`` and ``State.LR``."""
-    return np.zeros((2, KEEP_POINTS), np.int64), np.zeros((2, KEEP_POINTS))
+    """Empty ``State.LT`` and ``State.LR``, as keyword arguments of :class:`State`."""
+    return {"LT": np.zeros((2, KEEP_POINTS), np.int64), "LR": np.zeros((2, KEEP_POINTS))}
 
 #: The module of the compiled kernels, and the sources their machine code depends on
 KERNELS = "trivsel.decimation.collapse"
@@ -250,7 +250,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  stamp=np.zeros(1, np.int64),
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                  ctr=np.array([N, 0, 0, key == "max", bool(lazy), cap.sum(), 0, -1, 0, 0, 0], np.int64),
-                 LT=_kept_places()[0], LR=_kept_places()[1])
+                 **_kept_places())
 
 
 def _det3(u, v, w):
@@ -345,7 +345,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
                  pbuf=np.zeros(N, np.int64), phome=np.zeros(N, np.int64), aff=np.zeros(N, np.int64), acc=np.zeros(1),
                  ctr=np.array([int(isv.sum()), 0, 0, key == "max", bool(lazy), cap.sum(), ijk is None, -1, 0, 0, 0],
                               np.int64),
-                 LT=_kept_places()[0], LR=_kept_places()[1])
+                 **_kept_places())
 
 
 class Decimation:

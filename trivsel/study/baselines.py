@@ -396,16 +396,10 @@ def _warm_filter():
     global _WARM
     if _WARM:
         return
-    from vtkmodules.vtkFiltersCore import vtkUnstructuredGridQuadricDecimation
-
     from ..data import sample_grid
 
-    _WARM = True
-    flt = vtkUnstructuredGridQuadricDecimation()
-    flt.SetInputData(tet_grid(sample_grid(4, 6)))
-    flt.SetScalarsName("f")
-    flt.SetTargetReduction(0.5)
-    flt.Update()
+    _WARM = True  # before the call, which comes back here
+    vtk_quadric_decimation(sample_grid(4, 6), target_reduction=0.5)
 
 
 def _seed_c_rand(seed):
