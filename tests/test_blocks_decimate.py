@@ -3,6 +3,7 @@ jobs (:mod:`trivsel.blocks.decimate`) give the same mesh as one process, with th
 errors and the fitted values of that mesh, as a conforming tetrahedralisation in pieces."""
 
 import json
+import os
 
 import numpy as np
 import pytest
@@ -254,12 +255,9 @@ def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_
         assert z.keys() == again.keys() and all(np.array_equal(z[k], again[k]) for k in z)
 
 
-def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quota_job(tmp_path, capsys, monkeypatch):
-    """The first quota pass records each region to its share of the surplus and derives the cost
-    limit from that; where the limit lies at or past a record's end, the quota job records that
-    region again to twice its share (``again.npz``) and the apply jobs use it: the limit, the
-    quotas and the meshes of whole records.  Here the first records stop at 16 collapses, so that
-    regions are recorded again, and the pass's jobs run again in this process."""
+def _quota_pass_run(tmp_path, capsys):
+    """A run to a count kept with its files: the jobs' module, the run's folder, its stages, the
+    first quota pass and that pass's folder."""
     from trivsel.blocks import decimate as D
     from trivsel.blocks import read_config
 
@@ -269,7 +267,16 @@ def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quo
     capsys.readouterr()
     st = D.Stages(*read_config(out))
     p = [kind for kind, _ in st.passes].index("quota")
-    folder = out / "passes" / str(p)
+    return D, out, st, p, out / "passes" / str(p)
+
+
+def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quota_job(tmp_path, capsys, monkeypatch):
+    """The first quota pass records each region to its share of the surplus and derives the cost
+    limit from that; where the limit lies at or past a record's end, the quota job records that
+    region again to twice its share (``again.npz``) and the apply jobs use it: the limit, the
+    quotas and the meshes of whole records.  Here the first records stop at 16 collapses, so that
+    regions are recorded again, and the pass's jobs run again in this process."""
+    D, out, st, p, folder = _quota_pass_run(tmp_path, capsys)
     assert D._load(folder / "plan.npz")["ran"]
     names = ["quota.npz"] + [f"out/{s}.npz" for s in st.region_slabs(p)]
     before = {name: D._load(folder / name) for name in names}
@@ -282,6 +289,37 @@ def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quo
     assert (plan["caps"] < plan["whole_caps"]).any()
     again = D._load(folder / "again.npz")
     assert any(k.startswith("runmax_") for k in again)
+    for name, z in before.items():
+        now = D._load(folder / name)
+        assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
+
+
+def test_region_and_quota_jobs_read_only_their_part_of_the_pass(tmp_path, capsys, monkeypatch):
+    """A region job's memory is its regions': of the pass's plan it reads the regions and the
+    pass's figures, not the whole mesh's layout (``order``: every tetrahedron of the pass's
+    regions; ``left``: a flag per point), and the quota job reads the regions' costs, not their
+    meshes.  Run again while every .npz member read is recorded, the jobs write the same files."""
+    D, out, st, p, folder = _quota_pass_run(tmp_path, capsys)
+    assert {"order", "left"} <= set(D._load(folder / "plan.npz"))
+    names = ["quota.npz", "again.npz"] + [f"{d}/{s}.npz" for d in ("costs", "out") for s in st.region_slabs(p)]
+    before = {name: D._load(folder / name) for name in names}
+    read, job = [], [None]
+    getitem = np.lib.npyio.NpzFile.__getitem__
+
+    def recorded(self, key):
+        read.append((job[0], os.path.relpath(self.fid.name, folder), key))
+        return getitem(self, key)
+
+    monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__", recorded)
+    for kind in ("rcosts", "quota", "apply"):
+        job[0] = kind
+        for item in ([f"{p}_{s}" for s in st.region_slabs(p)] if kind != "quota" else [str(p)]):
+            D.run_job(out, kind, item)
+    monkeypatch.undo()
+    plan = {(kind, key) for kind, f, key in read if f == "plan.npz"}
+    assert {key for _, key in plan} <= set(D.PLAN_OF_REGIONS) and ("rcosts", "caps") in plan
+    quota = [key for kind, f, key in read if kind == "quota" and f.startswith("costs")]
+    assert {key.split("_")[0] for key in quota} == {"runmax", "sse"}
     for name, z in before.items():
         now = D._load(folder / name)
         assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name

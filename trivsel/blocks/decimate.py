@@ -29,8 +29,9 @@ one stage hands the next is a file in the run's folder::
                        one piece per block (pieces/, mesh.pvtu), summary.json
 
 A block job reads its blocks' samples, a region job its regions' points (the bounding box
-of each region's mesh); only the step, cut and last jobs hold arrays over the whole grid
-(owners and flags per point, the tetrahedra), never a decimation of it.
+of each region's mesh) and of ``plan.npz`` only what names its regions (``PLAN_OF_REGIONS``);
+the quota job reads the regions' costs, not their meshes. Only the step, cut and last jobs hold
+arrays over the whole grid (owners and flags per point, the tetrahedra), never a decimation of it.
 """
 
 from __future__ import annotations
@@ -220,9 +221,22 @@ def _points_values(vol, shape, ids):
     return box[tuple((ijk - lo).T)]
 
 
-def _load(path):
+def _load(path, keys=None):
+    """The arrays of an .npz file, or only those ``keys`` names (a collection of names, or a
+    predicate on a name): an .npz is read member by member, so a job holds only what it asks for."""
     with np.load(path, allow_pickle=False) as z:
-        return {k: z[k] for k in z.files}
+        want = (lambda k: True) if keys is None else keys if callable(keys) else set(keys).__contains__
+        return {k: z[k] for k in z.files if want(k)}
+
+
+#: What a region or quota job reads of its pass's ``plan.npz``: the regions and the pass's figures, not
+#: the layout of the whole mesh (``order``, ``left``: arrays over every tetrahedron and point) that
+#: only the step jobs use
+PLAN_OF_REGIONS = ("region", "ran", "surplus", "tau", "spent", "budget", "share", "limit", "caps", "whole_caps")
+
+
+def _region_plan(folder):
+    return _load(folder / "plan.npz", PLAN_OF_REGIONS)
 
 
 def _costs(out, st, slab):
@@ -397,8 +411,6 @@ def _step(out, st, p):
             r = int(plan["region"][k])
             inp = B.region_input(plan, T, owner, int(k))
             res.update({f"{name}_{r}": a for name, a in inp.items()})
-            if caps is not None:
-                res[f"cap_{r}"] = np.int64(caps[k])
         _atomic_savez(folder / "in" / f"{slab}.npz", **res)
 
 
@@ -410,12 +422,13 @@ def _region_inputs(z):
 def _region_costs(out, st, p, slab):
     vol = _open(st.cfg)
     folder = out / "passes" / str(p)
-    plan = _load(folder / "plan.npz")
+    plan = _region_plan(folder)
     z = _load(folder / "in" / f"{slab}.npz")
     regions, inp = _region_inputs(z)
+    cap = dict(zip(plan["region"].tolist(), plan["caps"].tolist()))
     res = {}
     for r in regions:
-        res.update(_region_record(vol, st, plan, inp(r), r, int(z[f"cap_{r}"])))
+        res.update(_region_record(vol, st, plan, inp(r), r, int(cap[r])))
     _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
 
 
@@ -438,10 +451,10 @@ def _quota(out, st, p):
     whole cap here, one at a time, into ``again.npz`` (which the apply jobs read after their
     slab's costs file)."""
     folder = out / "passes" / str(p)
-    plan = _load(folder / "plan.npz")
+    plan = _region_plan(folder)
     runmax, sse = {}, {}
-    for slab in st.region_slabs(p):
-        z = _load(folder / "costs" / f"{slab}.npz")
+    for slab in st.region_slabs(p):  # the costs, not the regions' meshes beside them
+        z = _load(folder / "costs" / f"{slab}.npz", lambda k: k.startswith(("runmax_", "sse_")))
         runmax.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("runmax_")})
         sse.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("sse_")})
     regions = [int(r) for r in plan["region"]]
@@ -479,7 +492,7 @@ def _quota(out, st, p):
 def _region_apply(out, st, p, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     folder = out / "passes" / str(p)
-    plan = _load(folder / "plan.npz")
+    plan = _region_plan(folder)
     quota, recorded = None, {}
     if st.costed:
         q = _load(folder / "quota.npz")
