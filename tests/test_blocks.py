@@ -374,6 +374,40 @@ def test_a_batch_names_the_item_that_failed(tmp_path, monkeypatch, capsys):
     assert "usage" in capsys.readouterr().err
 
 
+def test_a_job_run_by_hand_names_what_is_wrong_in_one_line(tmp_path, capsys):
+    """The job entry points (``python -m trivsel.blocks`` and ``trivsel.blocks.decimate``, what
+    a workflow rule runs, and what a user reruns by hand) keep the commands' contract: a folder
+    that is not a run, an item that names none of the run's jobs, or a job whose inputs were not
+    written yet is one line and exit 2, and nothing is written."""
+    import trivsel.blocks as blocks
+    from trivsel.blocks import decimate as D
+    from trivsel.blocks import write_config
+
+    greedy, dec = tmp_path / "greedy", tmp_path / "decimate"
+    write_config(greedy, {"function": 4, "n": 16, "block": 8, "tol_inf": 0.01})
+    write_config(dec, {"function": 4, "n": 16, "block": 8, "method": "decimate", "fraction": 0.1})
+    before = sorted(tmp_path.rglob("*"))
+    cases = [
+        (blocks.main, ["block", str(tmp_path / "none"), "0_0_0"], "not the folder of a blocked run (no blocks.json)"),
+        (blocks.main, ["block", str(greedy), "x"], "no block job 'x' in this run: its block jobs are 0_0_0,"),
+        (blocks.main, ["block", str(greedy), "2_0_0"], "no block job '2_0_0'"),
+        (blocks.main, ["plane", str(greedy), "3_0"], "no plane job '3_0'"),
+        (blocks.main, ["lines", str(greedy), "-1"], "no lines job '-1' in this run: its lines jobs are 0, 1, 2"),
+        (blocks.main, ["plane", str(greedy), "0_0"], "job plane 0_0: a file it reads is missing"),
+        (D.main, ["costs", str(tmp_path / "none"), "0"], "not the folder of a blocked run"),
+        (D.main, ["costs", str(dec), "01"], "no costs job '01' in this run: its costs jobs are 0, 1"),
+        (D.main, ["quota", str(dec), "x"], "no quota job 'x'"),
+        (D.main, ["rcosts", str(dec), "0"], "no rcosts job '0' in this run: its rcosts jobs are 0_0,"),
+        (D.main, ["apply", str(dec), "0_9"], "no apply job '0_9'"),
+        (D.main, ["mesh", str(dec), "0"], "job mesh 0: a file it reads is missing"),
+    ]
+    for main_, argv, message in cases:
+        assert main_(argv) == 2, argv
+        err = capsys.readouterr().err
+        assert err.startswith("trivsel: error: ") and message in err and err.count("\n") == 1, (argv, err)
+    assert sorted(tmp_path.rglob("*")) == before
+
+
 @pytest.mark.slurm
 def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     """A blocked run through `--executor slurm` and the unchanged workflow profile: every

@@ -726,9 +726,21 @@ def _open(cfg):
 
 
 def read_config(out):
-    with open(Path(out) / CONFIG) as fh:
+    """A run folder's configuration and plan; a one-line InputError when ``out`` is not one."""
+    path = Path(out) / CONFIG
+    if not path.is_file():
+        raise InputError(f"not the folder of a blocked run (no {CONFIG}): {shown(str(out))}")
+    with open(path) as fh:
         cfg = json.load(fh)
     return cfg, Plan.from_dict(cfg["plan"])
+
+
+def check_item(kind, item, items):
+    """A one-line InputError unless ``item`` names one of the run's jobs of ``kind`` (``items``,
+    their names in order)."""
+    if item not in items:
+        some = ", ".join(items[:4]) + (f", ... ({len(items)} in all)" if len(items) > 4 else "")
+        raise InputError(f"no {kind} job {shown(item)} in this run: its {kind} jobs are {some or 'none'}")
 
 
 def _atomic_write_text(path, text):
@@ -754,6 +766,10 @@ def run_job(out, kind, name):
     cfg, plan = read_config(out)
     out = Path(out)
     tol = cfg["tol_inf"]
+    items = {"lines": sorted({str(ln[0]) for ln in plan.lines()}), "plane": [item_name(q) for q in plan.planes()],
+             "block": [item_name(b) for b in plan.blocks()]}
+    if kind in items:
+        check_item(kind, name, items[kind])
     if kind == "lines":
         # every cut line along one axis (1-D work is small: one job per axis)
         axis = int(name)
@@ -1306,6 +1322,10 @@ def main(argv=None, *, job=None, prog="trivsel.blocks", usage="{kernels,lines,pl
     except InputError as exc:
         where = f"{args[0]} {item}: " if len(items) > 1 else ""
         print(f"trivsel: error: {where}{one_line(exc)}", file=sys.stderr)
+        return 2
+    except FileNotFoundError as exc:  # a job run by hand before the jobs that write its inputs
+        print(f"trivsel: error: job {args[0]} {item}: a file it reads is missing (have the jobs before it run?): "
+              f"{exc.filename}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("trivsel: error: stopped by a signal", file=sys.stderr)

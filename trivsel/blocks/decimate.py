@@ -44,7 +44,7 @@ import numpy as np
 
 from ..methods import get_method
 from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
-               check_tolerance, item_name, publish_results, read_config)
+               check_item, check_tolerance, item_name, publish_results, read_config)
 
 __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "check_job_memory"]
 
@@ -180,6 +180,17 @@ class Stages:
 
             return count_for_fraction(float(self.cfg["fraction"]), self.plan.n_points())
         return None
+
+    #: The job kinds with an item: a slab of blocks, a pass, or slab R of pass P's regions ("P_R")
+    ITEMS = ("costs", "mesh", "step", "quota", "rcosts", "apply")
+
+    def items(self, kind):
+        """The names of the run's jobs of ``kind`` (one of ``ITEMS``), in order."""
+        if kind in ("costs", "mesh"):
+            return [str(s) for s in self.slabs]
+        if kind in ("step", "quota"):
+            return [str(p) for p in range(len(self.passes))]
+        return [f"{p}_{s}" for p in range(len(self.passes)) for s in self.region_slabs(p)]
 
     def region_dims(self, p):
         return B.region_grid(self.plan.shape, self.passes[p][1], self.size)[0]
@@ -679,6 +690,8 @@ def run_job(out, kind, item=""):
     cfg, plan = read_config(out)
     out = Path(out)
     st = Stages(cfg, plan)
+    if kind in st.ITEMS:
+        check_item(kind, item, st.items(kind))
     if kind == "kernels":
         get_method("decimate").compile_kernels()
     elif kind == "costs":
