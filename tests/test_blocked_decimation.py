@@ -4,6 +4,7 @@ tetrahedron that holds it, the count asked for is met, and the errors stay near 
 unblocked run at the same count."""
 
 import re
+import shlex
 
 import numpy as np
 import pytest
@@ -357,8 +358,9 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     assert stopped and int(stopped.group(1)) > 300, err
     assert f"{int(stopped.group(1))}" in (tmp_path / "o8" / "errors.csv").read_text()
 
-    # 64.5 M points need 60 GiB in one piece; with 10 GiB available, blocks of 64 fit
-    monkeypatch.setattr(resources, "available_bytes", lambda: 10 * 2**30)
+    # 64.5 M points need 60 GiB in one piece; with 16 GiB available, blocks of 96 fit, and every job
+    # of decimate's in blocks of 48 (the step and last jobs hold the whole grid's arrays)
+    monkeypatch.setattr(resources, "available_bytes", lambda: 16 * 2**30)
     argv = ["reduce", "--function", "4", "--n", "400", "--method", "decimate", "--fractions", "0.05", "--out",
             str(tmp_path / "big")]
     assert main(argv) == 2
@@ -367,7 +369,26 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     jobs = (f"trivsel blocks --function 4 --n 400 --method decimate --block 48 --fraction 0.05 --out "
             f"{tmp_path / 'big'} -c 2")
     assert len(err) == 1 and err[0].endswith(f"in blocks of bounded memory: {jobs} (or in one process: trivsel "
-                                             + " ".join(argv) + " --block 64)"), err
+                                             + " ".join(argv) + " --block 96)"), err
+    assert not (tmp_path / "big").exists()
+    assert main(shlex.split(jobs)[1:] + ["-n"]) == 0  # the command named passes its own memory check
+    capsys.readouterr()
+    assert not (tmp_path / "big").exists()
+
+    # 1025^3 points: decimate's step and last jobs hold the whole grid's arrays, more than any block
+    # size leaves here; the refusal says what they need and names the bounded command that fits
+    monkeypatch.setattr(resources, "available_bytes", lambda: 21 * 2**30)
+    argv[4] = "1024"
+    assert main(argv) == 2
+    (err,) = capsys.readouterr().err.strip().splitlines()
+    named = re.fullmatch(r".*; decimate in blocks \((trivsel blocks .*)\) needs about (\d+) GiB for its finish job, "
+                         r"so run it where a job may have that much; here, in bounded memory: (trivsel blocks .*) "
+                         r"\(blocks stop at an E_inf tolerance TOL; they run paper or greedy\)", err)
+    assert named and int(named.group(2)) > 21, err
+    assert main(shlex.split(named.group(1))[1:] + ["-n"]) == 2
+    assert "needs about" in capsys.readouterr().err
+    assert main(shlex.split(named.group(3).replace("TOL", "0.01"))[1:] + ["-n"]) == 0
+    capsys.readouterr()
     assert not (tmp_path / "big").exists()
 
 

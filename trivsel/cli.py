@@ -315,8 +315,7 @@ def _blocks_hint(a, chosen, available):
     prescribed boundary: blocks cut grids into boxes of their own)."""
     import shlex
 
-    from .blocks import block_for_memory
-    from .methods import METHODS, get_method
+    from .blocks import SUGGESTED_BLOCKS
 
     if a.boundary is not None:
         return None
@@ -339,27 +338,69 @@ def _blocks_hint(a, chosen, available):
                 else ["--fraction", f"{float(a.fractions[0]):g}"] if a.fractions else [])
         stop += ["--tol-rms", f"{float(a.tol_rms):g}"] if a.tol_rms is not None else []
         stop += ["--tol-inf", f"{float(a.tol_inf):g}"] if a.tol_inf is not None else []
-        cmd = ["trivsel", "blocks", *source, "--method", "decimate", "--block", str(jobs_block(available)), *stop,
-               *(["--values", *a.values] if a.values else []), "--out", a.out, "-c", "2"]
+        # the largest block whose region jobs fit a core's share, and every other job here too
+        # (the step and last jobs hold arrays over the whole grid)
+        sizes = [b for b in SUGGESTED_BLOCKS if b <= jobs_block(available)]
+        needs = [_decimate_jobs_memory(a, source, b) for b in sizes]
+        fit = [b for b, need in zip(sizes, needs) if max(need.values()) <= available]
+        least = min(range(len(sizes)), key=lambda i: max(needs[i].values()))  # when none fits: the least
+        cmd = ["trivsel", "blocks", *source, "--method", "decimate", "--block", str(fit[0] if fit else sizes[least]),
+               *stop, *(["--values", *a.values] if a.values else []), "--out", a.out, "-c", "2"]
         block = _decimate_block_for_memory(a, source, available)
         one = ""
         if block is not None:
             argv = [x for i, x in enumerate(a.argv)  # the same command, its --block replaced
                     if x != "--block" and not x.startswith("--block=") and (i == 0 or a.argv[i - 1] != "--block")]
             one = f" (or in one process: {shlex.join(['trivsel', *argv, '--block', str(block)])})"
+        if not fit and needs[least]["kernels"] <= available:  # a job fits here, not the whole grid's arrays
+            kind = max(needs[least], key=needs[least].get)
+            need = needs[least][kind]
+            return (f"decimate in blocks ({shlex.join(cmd)}) needs about {need / 2**30:.3g} GiB for its {kind} job, "
+                    f"so run it where a job may have that much{one}; here, in bounded memory: "
+                    + _greedy_blocks_hint(a, chosen, available, source))
         return "in blocks of bounded memory: " + shlex.join(cmd) + one
+    return "in blocks of bounded memory: " + _greedy_blocks_hint(a, chosen, available, source)
+
+
+def _decimate_jobs_memory(a, source, block):
+    """The memory of each kind of job of ``trivsel blocks --method decimate`` for the reduce
+    command ``a`` on the grid of ``source`` in blocks of ``block`` (bytes by kind)."""
+    from .blocks.decimate import jobs_memory
+    from .io.regions import open_volume
+
+    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
+           else open_volume(function=a.function, n=a.n))
+    cfg = {"count": a.count, "fraction": float(a.fractions[0]) if a.fractions else None, "tol_rms": a.tol_rms,
+           "tol_inf": a.tol_inf, "values": list(a.values or ["data"])}
+    return jobs_memory(vol.shape, cfg, block)
+
+
+def _greedy_blocks_hint(a, chosen, available, source):
+    """The phrase of :func:`_blocks_hint` for the methods that take the blocks' faces (their
+    jobs are bounded by the block at any grid size)."""
+    import shlex
+
+    from .blocks import block_for_memory, job_resources, plan_blocks
+    from .io.regions import open_volume
+    from .methods import METHODS, get_method
+
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
     method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
     tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"
-    cmd = ["trivsel", "blocks", *source, "--block", str(block_for_memory(available)), "--tol-inf", tol,
-           "--method", method, "--out", a.out, "-c", "2"]
+    block = block_for_memory(available)
+    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
+           else open_volume(function=a.function, n=a.n))
+    plan = plan_blocks(vol.shape, block)
+    # the merged mesh's job grows with the grid: without it where it does not fit and a job does
+    merge, job = (job_resources(plan, kind)[0] * 2**20 for kind in ("merge", "kernels"))
+    cmd = ["trivsel", "blocks", *source, "--block", str(block), "--tol-inf", tol, "--method", method,
+           *(["--no-merged"] if merge > available >= job else []), "--out", a.out, "-c", "2"]
     notes = []
     if a.tol_inf is None:
         notes.append("blocks stop at an E_inf tolerance TOL")
     if method != chosen:
         notes.append(f"they run {' or '.join(able)}")
-    return ("in blocks of bounded memory: " + shlex.join(cmd)
-            + (f" ({'; '.join(notes)})" if notes else ""))
+    return shlex.join(cmd) + (f" ({'; '.join(notes)})" if notes else "")
 
 
 def _decimate_block_for_memory(a, source, available):

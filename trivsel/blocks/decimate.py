@@ -46,7 +46,8 @@ from ..methods import get_method
 from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
                check_item, check_tolerance, item_name, publish_results, read_config)
 
-__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "check_job_memory"]
+__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "jobs_memory",
+           "check_job_memory"]
 
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
@@ -115,21 +116,24 @@ def check_job_memory(full):
     avail = available_bytes()
     if avail is None:
         return
-
-    def needs(block):
-        cfg = {**full, "block": block}
-        plan = plan_decimation(Plan.from_dict(full["plan"]).shape, block)
-        return {k: job_resources(cfg, plan, k)[0] * 2**20 for k in Stages(cfg, plan).job_kinds()}
-
-    need = needs(int(full["block"]))
+    shape = Plan.from_dict(full["plan"]).shape
+    need = jobs_memory(shape, full, int(full["block"]))
     kind = max(need, key=need.get)
     if need[kind] <= avail:
         return
-    fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(needs(b).values()) <= avail]
+    fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(jobs_memory(shape, full, b).values()) <= avail]
     fix = (f"use --block {fits[0]}" if fits
            else "the whole grid's arrays do not fit: run it on a larger machine or a cluster")
     raise InputError(f"a {kind} job of decimate in blocks of {full['block']} needs about "
                      f"{need[kind] / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB available: {fix}")
+
+
+def jobs_memory(shape, cfg, block):
+    """The memory (bytes) that each kind of job of a run on a grid of ``shape`` requests
+    (:func:`job_resources`), with the stop and values of ``cfg``, in blocks of ``block``."""
+    cfg = {**cfg, "block": int(block)}
+    plan = plan_decimation(shape, int(block))
+    return {k: job_resources(cfg, plan, k)[0] * 2**20 for k in Stages(cfg, plan).job_kinds()}
 
 
 def block_for_memory(available, *, cores=2):
