@@ -374,6 +374,41 @@ def test_a_batch_names_the_item_that_failed(tmp_path, monkeypatch, capsys):
     assert "usage" in capsys.readouterr().err
 
 
+def test_a_job_file_is_written_group_by_group_and_only_whole(tmp_path):
+    """A job's .npz is written one block's (or region's) arrays at a time, as they are made: the
+    file reads as :func:`numpy.savez` would have written it, each group is written before the
+    next is asked for, and a job that fails half-way leaves neither the file nor a part of it."""
+    from trivsel.blocks import _atomic_savez_each
+
+    rng = np.random.default_rng(0)
+    groups = [{f"tets_{i}": rng.integers(0, 9, (i + 2, 4)), f"removed_{i}": np.int64(i), f"runmax_{i}": rng.random(i)}
+              for i in range(4)]
+    path = tmp_path / "slab.npz"
+    asked = []
+
+    def made(fail_at=None):
+        for i, g in enumerate(groups):
+            if i == fail_at:
+                raise RuntimeError("a block failed")
+            if asked:  # the group before is in the file already
+                tmp = [q for q in tmp_path.iterdir() if q != path]
+                assert len(tmp) == 1 and tmp[0].stat().st_size > sum(a.nbytes for a in groups[i - 1].values())
+            asked.append(i)
+            yield g
+
+    _atomic_savez_each(path, made())
+    assert asked == [0, 1, 2, 3]
+    np.savez(tmp_path / "ref.npz", **{k: v for g in groups for k, v in g.items()})
+    with np.load(path) as z, np.load(tmp_path / "ref.npz") as ref:
+        assert z.files == ref.files and all(np.array_equal(z[k], ref[k]) and z[k].dtype == ref[k].dtype for k in z.files)
+    (tmp_path / "ref.npz").unlink()
+    before = path.read_bytes()
+    asked.clear()
+    with pytest.raises(RuntimeError, match="a block failed"):
+        _atomic_savez_each(path, made(fail_at=2))
+    assert sorted(tmp_path.iterdir()) == [path] and path.read_bytes() == before
+
+
 def test_a_job_run_by_hand_names_what_is_wrong_in_one_line(tmp_path, capsys):
     """The job entry points (``python -m trivsel.blocks`` and ``trivsel.blocks.decimate``, what
     a workflow rule runs, and what a user reruns by hand) keep the commands' contract: a folder

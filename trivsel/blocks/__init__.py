@@ -750,9 +750,26 @@ def _atomic_write_text(path, text):
 
 
 def _atomic_savez(path, **arrays):
+    _atomic_savez_each(path, [arrays])
+
+
+def _atomic_savez_each(path, groups):
+    """An .npz file (as :func:`numpy.savez` writes one) of the arrays of each dict of the
+    iterable ``groups`` in turn, each group written as it comes: a job that makes its blocks' or
+    regions' arrays one at a time holds one at a time.  Written beside ``path`` and moved onto
+    it when complete (:func:`trivsel.io.pieces._atomic_write`)."""
+    import zipfile
+
     from ..io.pieces import _atomic_write
 
-    _atomic_write(path, lambda tmp: np.savez(tmp, **arrays), overwrite=True)
+    def write(tmp):
+        with zipfile.ZipFile(tmp, "w", zipfile.ZIP_STORED, allowZip64=True) as zf:
+            for arrays in groups:
+                for name, a in arrays.items():
+                    with zf.open(name + ".npy", "w", force_zip64=True) as fh:
+                        np.lib.format.write_array(fh, np.asanyarray(a), allow_pickle=False)
+
+    _atomic_write(path, write, overwrite=True)
 
 
 def _stats(d):

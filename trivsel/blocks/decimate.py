@@ -30,8 +30,12 @@ one stage hands the next is a file in the run's folder::
 
 A block job reads its blocks' samples, a region job its regions' points (the bounding box
 of each region's mesh) and of ``plan.npz`` only what names its regions (``PLAN_OF_REGIONS``);
-the quota job reads the regions' costs, not their meshes. Only the step, cut and last jobs hold
-arrays over the whole grid (owners and flags per point, the tetrahedra), never a decimation of it.
+the quota job reads the regions' costs, not their meshes. A slab's job takes its blocks or
+regions one at a time: it reads each one's part of its input files (``_Members``) and writes
+its file one block or region at a time (``_atomic_savez_each``), so that its memory is that of
+one block or region, not of the slab. Only the step, cut, quota and last jobs hold arrays over
+the whole grid (owners and flags per point, the tetrahedra, the recorded costs), never a
+decimation of it.
 """
 
 from __future__ import annotations
@@ -43,8 +47,8 @@ from pathlib import Path
 import numpy as np
 
 from ..methods import get_method
-from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_write_text, _open,
-               check_item, check_tolerance, item_name, publish_results, read_config)
+from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_savez_each,
+               _atomic_write_text, _open, check_item, check_tolerance, item_name, publish_results, read_config)
 
 __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "jobs_memory",
            "check_job_memory"]
@@ -254,12 +258,40 @@ def _region_plan(folder):
     return _load(folder / "plan.npz", PLAN_OF_REGIONS)
 
 
+class _Members:
+    """The members of .npz files, each read when asked for (of the last file that has it): a
+    job holds its slab's blocks or regions one at a time, not the whole file.  A context
+    manager: the files are open inside it."""
+
+    def __init__(self, *paths):
+        self.paths = [Path(p) for p in paths]
+
+    def __enter__(self):
+        self.files = [np.load(p, allow_pickle=False) for p in self.paths]
+        self.names = [set(z.files) for z in self.files]
+        return self
+
+    def __exit__(self, *exc):
+        for z in self.files:
+            z.close()
+
+    def __contains__(self, name):
+        return any(name in n for n in self.names)
+
+    def __getitem__(self, name):
+        for z, n in zip(reversed(self.files), reversed(self.names)):
+            if name in n:
+                return z[name]
+        raise KeyError(name)
+
+    def __iter__(self):
+        return iter(sorted(set().union(*self.names)))
+
+
 def _costs(out, st, slab):
-    vol, shape = _open(st.cfg), st.plan.shape
-    res = {}
-    for i, lo, hi in st.blocks_of(slab):
-        res.update(_block_record(vol, st, i, lo, hi, B.RECORD_FLOOR))
-    _atomic_savez(out / "costs" / f"{slab}.npz", **res)
+    vol = _open(st.cfg)
+    _atomic_savez_each(out / "costs" / f"{slab}.npz", (_block_record(vol, st, i, lo, hi, B.RECORD_FLOOR)
+                                                       for i, lo, hi in st.blocks_of(slab)))
 
 
 def _block_record(vol, st, i, lo, hi, floor):
@@ -338,21 +370,24 @@ def _limit(out, st, p):
 def _mesh(out, st, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     tau, d = _tau(out)
-    recorded = None
+    files = []
     if st.costed:  # pass 1's collapses, replayed: the blocks the cut recorded again from its file
-        recorded = _load(out / "costs" / f"{slab}.npz")
-        if (out / "costs" / "whole.npz").exists():  # (none in a run begun before the cut wrote it)
-            recorded.update(_load(out / "costs" / "whole.npz"))
-    res = {}
-    for i, lo, hi in st.blocks_of(slab):
-        rec = None
-        if recorded is not None:
-            c = d["counts"][i]
-            rec = recorded[f"removed_{i}"][:c], recorded[f"into_{i}"][:c]
-        T, inside, rows, n = B.block_mesh(_read_box(vol, lo, hi), lo, shape, st.seam_axes(), fraction=st.fraction(),
-                                          tau=tau, tol_inf=st.cfg.get("tol_inf"), recorded=rec)
-        res.update({f"tets_{i}": T, f"inside_{i}": inside, f"rows_{i}": rows, f"removed_{i}": np.int64(n)})
-    _atomic_savez(out / "meshes" / f"{slab}.npz", **res)
+        whole = out / "costs" / "whole.npz"  # (none in a run begun before the cut wrote it)
+        files = [out / "costs" / f"{slab}.npz"] + ([whole] if whole.exists() else [])
+
+    def meshes(recorded):
+        for i, lo, hi in st.blocks_of(slab):
+            rec = None
+            if st.costed:
+                c = d["counts"][i]
+                rec = recorded[f"removed_{i}"][:c], recorded[f"into_{i}"][:c]
+            T, inside, rows, n = B.block_mesh(_read_box(vol, lo, hi), lo, shape, st.seam_axes(),
+                                              fraction=st.fraction(), tau=tau, tol_inf=st.cfg.get("tol_inf"),
+                                              recorded=rec)
+            yield {f"tets_{i}": T, f"inside_{i}": inside, f"rows_{i}": rows, f"removed_{i}": np.int64(n)}
+
+    with _Members(*files) as recorded:
+        _atomic_savez_each(out / "meshes" / f"{slab}.npz", meshes(recorded))
 
 
 def _state(out, st, p):
@@ -438,13 +473,11 @@ def _region_costs(out, st, p, slab):
     vol = _open(st.cfg)
     folder = out / "passes" / str(p)
     plan = _region_plan(folder)
-    z = _load(folder / "in" / f"{slab}.npz")
-    regions, inp = _region_inputs(z)
     cap = dict(zip(plan["region"].tolist(), plan["caps"].tolist()))
-    res = {}
-    for r in regions:
-        res.update(_region_record(vol, st, plan, inp(r), r, int(cap[r])))
-    _atomic_savez(folder / "costs" / f"{slab}.npz", **res)
+    with _Members(folder / "in" / f"{slab}.npz") as z:
+        regions, inp = _region_inputs(z)
+        _atomic_savez_each(folder / "costs" / f"{slab}.npz",
+                           (_region_record(vol, st, plan, inp(r), r, int(cap[r])) for r in regions))
 
 
 def _region_record(vol, st, plan, inp, r, cap):
@@ -484,12 +517,11 @@ def _quota(out, st, p):
         if B.derives_limit(kind, surplus, limit) and len(plan.get("whole_caps", ())) == len(regions):
 
             def record_again(ks):  # to the whole cap, one at a time
-                vol, per, inputs = _open(st.cfg), int(np.prod(st.region_dims(p)[1:])), {}
+                vol, per = _open(st.cfg), int(np.prod(st.region_dims(p)[1:]))
                 for k in ks:
                     r = regions[k]
-                    if r // per not in inputs:
-                        inputs = {r // per: _region_inputs(_load(folder / "in" / f"{r // per}.npz"))[1]}
-                    rec = _region_record(vol, st, plan, inputs[r // per](r), r, int(plan["whole_caps"][k]))
+                    z = _load(folder / "in" / f"{r // per}.npz", lambda name: name.endswith(f"_{r}"))  # its input
+                    rec = _region_record(vol, st, plan, _region_inputs(z)[1](r), r, int(plan["whole_caps"][k]))
                     again.update(rec)
                     sses[k] = rec[f"sse_{r}"]
                     yield rec[f"runmax_{r}"]
@@ -508,29 +540,29 @@ def _region_apply(out, st, p, slab):
     vol, shape = _open(st.cfg), st.plan.shape
     folder = out / "passes" / str(p)
     plan = _region_plan(folder)
-    quota, recorded = None, {}
+    quota, files = None, []
     if st.costed:
         q = _load(folder / "quota.npz")
         quota = dict(zip(q["region"].tolist(), q["quota"].tolist()))
-        recorded = _load(folder / "costs" / f"{slab}.npz")
-        if (folder / "again.npz").exists():  # the regions the quota job recorded again (none in older runs)
-            recorded.update(_load(folder / "again.npz"))
-    z = _load(folder / "in" / f"{slab}.npz")
-    regions, inp = _region_inputs(z)
-    res = {}
-    for r in regions:
-        if quota is not None and quota[r] == len(recorded[f"runmax_{r}"]):  # every collapse it recorded
-            result = [recorded[f"{name}_{r}"] for name in RESULT]
-        else:
-            i = inp(r)
-            seq = None  # the first collapses it recorded, replayed (none in a run begun before they were kept)
-            if quota is not None and f"lremoved_{r}" in recorded:
-                seq = recorded[f"lremoved_{r}"], recorded[f"linto_{r}"]
-            result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
-                                       tol_inf=st.cfg.get("tol_inf"), quota=None if quota is None else quota[r],
-                                       recorded=seq)
-        res.update({f"{name}_{r}": a for name, a in zip(RESULT, result)})
-    _atomic_savez(folder / "out" / f"{slab}.npz", **res)
+        again = folder / "again.npz"  # the regions the quota job recorded again (none in older runs)
+        files = [folder / "costs" / f"{slab}.npz"] + ([again] if again.exists() else [])
+
+    def results(regions, inp, recorded):
+        for r in regions:
+            if quota is not None and quota[r] == len(recorded[f"runmax_{r}"]):  # every collapse it recorded
+                result = [recorded[f"{name}_{r}"] for name in RESULT]
+            else:
+                i = inp(r)
+                seq = None  # the first collapses it recorded, replayed (none in a run begun before they were kept)
+                if quota is not None and f"lremoved_{r}" in recorded:
+                    seq = recorded[f"lremoved_{r}"], recorded[f"linto_{r}"]
+                result = B.region_decimate(i, shape, _points_values(vol, shape, i["local"]), tau=float(plan["tau"]),
+                                           tol_inf=st.cfg.get("tol_inf"), quota=None if quota is None else quota[r],
+                                           recorded=seq)
+            yield {f"{name}_{r}": a for name, a in zip(RESULT, result)}
+
+    with _Members(folder / "in" / f"{slab}.npz") as z, _Members(*files) as recorded:
+        _atomic_savez_each(folder / "out" / f"{slab}.npz", results(*_region_inputs(z), recorded))
 
 
 def _finish(out, st):
