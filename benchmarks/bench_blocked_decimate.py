@@ -36,6 +36,14 @@ the largest job by Snakemake's benchmark files, the count and the errors, then t
     python benchmarks/bench_blocked_decimate.py --jobs f4 --size 257 --block 64 --fractions 0.05
     python benchmarks/bench_blocked_decimate.py --jobs t1 --block 48 --rms 1.16
 
+``--job-peaks`` runs ``trivsel blocks --method decimate`` on function 4 (``--size``, ``--block``,
+the first of ``--fractions``, ``--values data fit``) keeping every job's files, then runs again,
+on a copy of the folder, the item of each kind of job that Snakemake's benchmark files show as the
+largest, as a process of its own under ``/usr/bin/time``: its peak memory (with the code that
+``PYTHONPATH`` names, so two versions compare)::
+
+    python benchmarks/bench_blocked_decimate.py --job-peaks --size 129 --block 32 --fractions 0.05
+
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
 exact queue down to its share of the count, and below it the exact queue or the lazy one).
 
@@ -200,6 +208,42 @@ def jobs(source, size, block, fraction=None, count=None, keep=None, rms=None):
                                                       sorted(by_rule.items(), key=lambda kv: -kv[1][1])), flush=True)
 
 
+def job_peaks(size, block, fraction):
+    """``--job-peaks`` (see the module docstring)."""
+    import re
+    import shutil
+    import subprocess
+    import tempfile
+
+    with tempfile.TemporaryDirectory(prefix="bench-job-peaks-") as tmp:
+        out = Path(tmp) / "run"
+        subprocess.run([sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", str(size - 1), "--block",
+                        str(block), "--method", "decimate", "--fraction", str(fraction), "--values", "data", "fit",
+                        "--out", str(out), "-c", "2", "--", "--notemp"], check=True, capture_output=True)
+        largest = {}  # kind -> (Snakemake's max_rss in MB, item)
+        for tsv in (out / "benchmarks").rglob("*.tsv"):
+            name = tsv.relative_to(out / "benchmarks").with_suffix("")
+            kind, item = name.parts[0], (name.parts[1] if len(name.parts) > 1 else "")
+            mb = float(tsv.read_text().splitlines()[1].split("\t")[2])
+            if kind != "kernels" and mb >= largest.get(kind, (-1.0, ""))[0]:
+                largest[kind] = (mb, item)
+        print(f"| f4 {size}^3, blocks of {block}, {fraction:g} | kind | item | peak MB (/usr/bin/time) | seconds |")
+        print("|---|---|---|---|---|")
+        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "finish"):
+            if kind not in largest:
+                continue
+            item = largest[kind][1]
+            copy = Path(tmp) / "copy"
+            shutil.copytree(out, copy)
+            p = subprocess.run(["/usr/bin/time", "-f", "%M %e", sys.executable, "-m", "trivsel.blocks.decimate", kind,
+                                str(copy), *([item] if item else [])], capture_output=True, text=True)
+            if p.returncode != 0:
+                raise SystemExit(p.stderr[-2000:])
+            kb, secs = re.findall(r"^(\d+) ([\d.]+)$", p.stderr, flags=re.M)[-1]
+            print(f"| | {kind} | {item or '-'} | {int(kb) / 1024:.0f} | {float(secs):.2f} |", flush=True)
+            shutil.rmtree(copy)
+
+
 def phases(source, block, fraction):
     """Pass 1 on one interior block, its phases timed: the lazy queue to twice its share of the
     count, then the exact queue to its share, half, a quarter, and to the end; and again with
@@ -319,7 +363,11 @@ def main(argv=None):
     ap.add_argument("--threads", type=int, default=1, help="processes of the blocked runs in this process")
     ap.add_argument("--tol-rms", action="store_true",
                     help="blocked to the unblocked run's E_RMS at each fraction, not to its count")
+    ap.add_argument("--job-peaks", action="store_true", help="each kind of job's peak memory, as a process of its own")
     a = ap.parse_args(argv)
+    if a.job_peaks:
+        job_peaks(a.size, a.block, a.fractions[0])
+        return
     if a.phases:
         phases(a.phases, a.block, a.fractions[0])
         return
