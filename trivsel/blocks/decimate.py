@@ -334,7 +334,7 @@ def _cut(out, st):
                                               st.budget(), short, record_again)
     if st.costed:
         _atomic_savez(out / "costs" / "whole.npz", **whole)
-    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
+    counts = B.cut_counts(runmax, tau, inner, N - sum(inner), target) if runmax else None
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": B.sse_at(sse, counts) if counts else 0.0,
                                                      "recorded_again": len(again)}))

@@ -353,6 +353,36 @@ def threshold(runmax, inner, seam_points, target, sse=None, budget=INF):
     return tau, decided
 
 
+def cut_counts(runmax, tau, inner=None, seam_points=0, target=None):
+    """Each block's collapses at the threshold ``tau`` (:func:`threshold`): every collapse whose
+    running maximum lies at or below tau, but of those at tau (a tie: symmetric data, flat
+    regions), in block order, only as many as keep :func:`threshold`'s projected count (the
+    blocks' points left, ``inner`` of them off the seams, plus the ``seam_points`` at their
+    density) at ``target`` or above: taking them all could take the count below the target,
+    which no later pass gives back.  Without a target, every collapse at tau."""
+    hi = [int(np.searchsorted(r, tau, side="right")) for r in runmax]
+    if target is None or not runmax:
+        return hi
+    total = sum(inner)
+
+    def left(kept):
+        return kept + seam_points * kept / max(total, 1)
+
+    kept = min(total, max(0, int(target * total / max(total + seam_points, 1))))  # then exactly by left()
+    while kept > 0 and left(kept - 1) >= target:
+        kept -= 1
+    while kept < total and left(kept) < target:
+        kept += 1
+    lo = [int(np.searchsorted(r, tau, side="left")) for r in runmax]
+    extra = total - kept - sum(lo)  # the tied collapses the target leaves room for
+    counts = []
+    for a, h in zip(lo, hi):
+        take = min(h - a, max(extra, 0))
+        extra -= take
+        counts.append(a + take)
+    return counts
+
+
 def short_blocks(runmax, short, decided):
     """The blocks whose record (:func:`block_costs`) stopped at its floor (``short``) at or below
     the cost ``decided`` (:func:`threshold`): recorded again to their last collapse, the cut
@@ -699,7 +729,7 @@ def decimate_in_blocks(volume, block, *, count=None, fraction=None, tol_rms=None
                                             budget, short, record_again)
 
     # pass 2: every block to tau (the prefix of its sequence, replayed)
-    counts = [int(np.searchsorted(r, tau, side="right")) for r in runmax] if runmax else None
+    counts = cut_counts(runmax, tau, inner, N - sum(inner), target) if runmax else None
     spent = sse_at(sse, counts) if counts else 0.0
     _SHARED["tau"] = tau
     _SHARED["recorded"] = [(v[:c], w[:c]) for (v, w), c in zip(recorded, counts)] if counts else None
