@@ -295,7 +295,7 @@ def test_workflow_dry_run_plans_resources(tmp_path):
     (["--function", "4", "--block", "4", "--tol-inf", "0.1"], "give --n"),
     (["--function", "4", "--n", "16", "--tol-inf", "0.1"], "give --block"),
     (["--function", "4", "--n", "16", "--block", "4"], "give --tol-inf"),
-    (["--function", "4", "--n", "16", "--block", "1", "--tol-inf", "0.1"], "block size"),
+    (["--function", "4", "--n", "16", "--block", "1", "--tol-inf", "0.1"], "block must be an integer from 2 to"),
     (["--function", "4", "--n", "16", "--block", "4", "--tol-inf", "-1"], "tol_inf"),
     (["--function", "9", "--n", "16", "--block", "4", "--tol-inf", "0.1"], "function"),
     (["missing.zarr", "--block", "4", "--tol-inf", "0.1"], "missing.zarr"),

@@ -208,7 +208,8 @@ def _cases(tmp: Path):
                                                     "--tol-inf", "0.1", "--out", out], 2,
          "GiB of memory available: use a smaller --block"),
         ("blocks: block size 0", ["blocks", "--function", "4", "--n", "8", "--block", "0", "--tol-inf", "0.1",
-                                  "--out", out], 2, "block size must be an integer >= 2"),
+                                  "--out", out], 2, "block must be an integer from 2 to 2147483647 (grid intervals per "
+                                                    "block), got 0"),
         ("blocks: tol_inf nan", ["blocks", "--function", "4", "--n", "8", "--block", "4", "--tol-inf", "nan",
                                  "--out", out], 2, "tol_inf must be a finite number >= 0, got nan"),
         ("blocks: grid with a NaN origin", ["blocks", _write(tmp, "bo.npz", _npz(values=np.zeros((5, 5, 5)),
@@ -257,7 +258,8 @@ def _cases(tmp: Path):
         ("blocks: decimate, tol_inf -1", ["blocks", *BLOCKS_DEC, "--tol-inf", "-1", "--out", out], 2,
          "tol_inf must be a finite number >= 0, got -1"),
         ("blocks: decimate, block 1", ["blocks", "--function", "4", "--n", "8", "--block", "1", "--method", "decimate",
-                                       "--count", "50", "--out", out], 2, "block size must be an integer >= 2"),
+                                       "--count", "50", "--out", out], 2, "block must be an integer from 2 to 2147483647 "
+                                                                          "(grid intervals per block), got 1"),
         ("blocks: decimate of a grid larger than the memory", ["blocks", "--function", "4", "--n", "3000", "--block",
                                                                "64", "--method", "decimate", "--fraction", "0.05",
                                                                "--out", out], 2,
@@ -302,6 +304,50 @@ def _cases(tmp: Path):
 BIG = 2**53 + 1  # the first integer float64 cannot hold
 BEYOND = "is beyond 2^53: float64 cannot hold it exactly"
 NOT_OURS = "exists and no trivsel run wrote it"
+
+
+def _nearly_a_line(n=40, seed=2):
+    """Scattered points all but four of them on a line: their hull's tetrahedra are flat in float64."""
+    rng = np.random.default_rng(seed)
+    q = rng.random((n, 3))
+    q[:, 1], q[:, 2] = 2 * q[:, 0], 3 * q[:, 0]
+    q[:4] += rng.random((4, 3))
+    return q
+
+
+def _folded_mesh(p):
+    """Two tetrahedra that share a triangle and lie on the same side of it."""
+    import pyvista as pv
+
+    pts = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [0, 0, 1], [0.2, 0.2, 0.3]], float)
+    g = pv.UnstructuredGrid(np.array([4, 0, 1, 2, 3, 4, 0, 1, 2, 4]), np.full(2, 10, np.uint8), pts)
+    g.point_data["value"] = np.arange(5.0)
+    g.save(p)
+
+
+def _infinite_slope(p):
+    """An int16 NIfTI whose header's scl_slope is infinite (a NIfTI-1 header keeps it at byte 112)."""
+    import struct
+
+    _nifti(np.arange(64, dtype=np.int16).reshape(4, 4, 4), np.eye(4))(p)
+    b = bytearray(p.read_bytes())
+    b[112:116] = struct.pack("<f", np.inf)
+    p.write_bytes(bytes(b))
+
+
+def _truncated(make, cut):
+    """A file as ``make`` writes it, less its last ``cut`` bytes."""
+    def write(p):
+        make(p)
+        p.write_bytes(p.read_bytes()[:-cut])
+    return write
+
+
+def _long_double(p):
+    """A long-double grid one of whose values float64 would round (where long double is wider)."""
+    v = np.ones((3, 3, 3), np.longdouble)
+    v[0, 0, 1] += np.longdouble(2) ** -60
+    np.save(p, v)
 
 
 def _big_grid(dtype=np.int64):
@@ -508,6 +554,56 @@ def _input_cases(tmp: Path):
          "(shape (4000, 4000, 4000)) needs about"),
         ("vti header beyond memory", ["reduce", _write(tmp, "huge.vti", _huge_vti), *red], 2,
          "(64000000000 points) needs about"),
+        ("max_flips beyond an int64", ["reduce", *FN, "--max-flips", "99999999999999999999", *red], 2,
+         "max_flips must be <= 9223372036854775807, got 99999999999999999999"),
+        ("block beyond what a run takes", ["reduce", *FN, "--method", "decimate", "--block", str(2**63 - 1), *red],
+         2, f"block must be <= 2147483647, got {2**63 - 1}"),
+        ("quantum 0", ["reduce", *FN, "--quantum", "0", *red], 2, "quantum must be >= 1e-15, got 0.0"),
+        ("quantum below float64's rounding", ["reduce", *FN, "--quantum", "1e-300", *red], 2,
+         "quantum must be >= 1e-15, got 1e-300"),
+        ("a folder named as a CSV", ["reduce", _write(tmp, "d.csv", lambda q: q.mkdir()), *red], 2,
+         "d.csv' is a folder, not a .csv file"),
+        ("blocks on a folder named as a NIfTI", ["blocks", _write(tmp, "d.nii", lambda q: q.mkdir()), "--block",
+                                                 "2", "--tol-inf", "0", "--out", out, "-c", "1"], 2,
+         "d.nii' is a folder, not a .nii file"),
+        ("points too near a line for greedy", ["reduce", _write(tmp, "line.npz", _npz(points=_nearly_a_line(),
+                                                                                  values=f[:40])),
+                                               "--method", "greedy", *red], 2,
+         ("the points are too near a plane or a line for 'greedy'", "--method decimate takes them")),
+        ("CSV with two columns that could be the values", ["reduce", _write(tmp, "vv.csv", _text(
+            "x,y,z,Value,VALUE\n" + "".join(f"{a},{b},{c},{a},{a + 100}\n" for a, b, c in p))), *red], 2,
+         "has 2 columns that could be 'value' ('Value', 'VALUE'): rename all but one"),
+        ("CSV of true/false values", ["reduce", _write(tmp, "tf.csv", _text(
+            "x,y,z,value\n" + "".join(f"{a},{b},{c},{a > 0.5}\n" for a, b, c in p))), *red], 2,
+         "column 'value' holds true/false, not numbers"),
+        ("CSV row with a field too many", ["reduce", _write(tmp, "row.csv", _text("x,y,z,value\n1,2,3,4\n1,2,3,4,5\n")),
+                                           *red], 2, "Expected 4 fields in line 3, saw 5"),
+        ("npz grid of a complex origin", ["reduce", _write(tmp, "cxo.npz", _npz(values=np.zeros((3, 4, 5)),
+                                                                                origin=np.array([7j, 0, 0]))), *red],
+         2, "grid origin must be real numbers, got complex128 values [7j, 0j, 0j]"),
+        ("npz grid of a true/false spacing", ["reduce", _write(tmp, "bsp.npz", _npz(values=np.zeros((3, 4, 5)),
+                                                                                    spacing=np.ones(3, bool))), *red],
+         2, "grid spacing must be real numbers, got bool values"),
+        ("long double values that float64 would round", ["reduce", _write(tmp, "ld.npy", _long_double), *red], 2,
+         "has more precision than float64 holds: it would be rounded"),
+        ("convert of long double values that float64 would round",
+         ["convert", _write(tmp, "ld2.npy", _long_double), str(tmp / "out" / "ld.zarr")], 2,
+         ("at grid index (0, 0, 1) of", "ld2.npy' has more precision than float64 holds")),
+        ("blocks on a truncated int16 NIfTI", ["blocks", _write(tmp, "tr.nii", _truncated(_nifti(
+            np.arange(729, dtype=np.int16).reshape(9, 9, 9), np.eye(4)), 600)), "--block", "4", "--tol-inf", "0.5",
+            "--out", out, "-c", "1"], 2, ("tr.nii'", "could the file be damaged?")),
+        ("NIfTI of an infinite scl_slope", ["reduce", _write(tmp, "slope.nii", _infinite_slope), *red], 2,
+         "has a non-finite scaling (scl_slope = inf, scl_inter = 0.0)"),
+        ("npz of 4-D values", ["reduce", _write(tmp, "v4.npz", _npz(values=np.zeros((2, 2, 2, 2)))), *red], 2,
+         "'values' has shape (2, 2, 2, 2): need a 3-D grid, or 1-D values beside a 'points' array"),
+        ("a folded tetrahedral mesh", ["reduce", _write(tmp, "fold.vtu", _folded_mesh), "--method", "decimate", *red],
+         2, "is folded: tetrahedra 0 and 1 share triangle [0, 1, 2] and lie on the same side of it"),
+        ("blocks config whose input is a number", ["blocks", "--config", _write(tmp, "in5.yaml", _text(
+            "block: 4\ntol_inf: 0.1\ninput: 5\n")), "--out", out, "-c", "1"], 2,
+         "input must be a path (a non-empty string), got 5"),
+        ("blocks config whose block is a list", ["blocks", "--config", _write(tmp, "bl.yaml", _text(
+            "block: [4, 4, 8]\nmethod: decimate\nfraction: 0.3\nfunction: 4\nn: 8\n")), "--out", out, "-c", "1"], 2,
+         "block must be an integer from 2 to 2147483647 (grid intervals per block), got [4, 4, 8]"),
     ]
 
 
@@ -633,6 +729,21 @@ def test_blocks_refuses_a_folder_another_run_holds(tmp_path):
     assert code == 2
     _one_line(err, "another trivsel blocks run is working in")
     assert list(out.iterdir()) == []
+
+
+def test_blocks_that_snakemake_stops_before_any_job_leaves_nothing(tmp_path, capfd):
+    """An argument Snakemake refuses (after ``--``) ends the run before any job: the folders and
+    the configuration that run made are taken back; a folder of the user's keeps only its files."""
+    for out in (tmp_path / "new" / "run", tmp_path / "mine"):
+        if out.name == "mine":
+            out.mkdir()
+            (out / "notes.txt").write_text("keep me")
+        code, err, _ = _run(["blocks", *FN, "--block", "4", "--tol-inf", "0.1", "--out", str(out), "-c", "1", "--",
+                             "--no-such-snakemake-flag"])
+        err += capfd.readouterr().err
+        assert code == 1 and "unrecognized arguments: --no-such-snakemake-flag" in err, err
+    assert not (tmp_path / "new").exists()
+    assert [q.name for q in (tmp_path / "mine").iterdir()] == ["notes.txt"]
 
 
 def test_blocks_dry_run_creates_nothing(tmp_path, capfd):

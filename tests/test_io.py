@@ -42,6 +42,34 @@ def test_vti_geometry_and_point_ids(tmp_path, extent_offset):
     _check_round_trip(out, np.asarray(g.points), np.asarray(g.point_data["density"]))
 
 
+def test_a_csv_column_named_exactly_is_taken_before_one_in_other_case(tmp_path):
+    """``x, y, z, value`` name their columns: an exact name (spaces aside) first, then one in
+    other case; two candidates of which none is exact are refused (a hostile case)."""
+    rng = np.random.default_rng(1)
+    q = rng.random((30, 3))
+    path = tmp_path / "c.csv"
+    path.write_text("X,x,y, Z ,value,Value\n" + "".join(f"{a + 50},{a},{b},{c},{a},{a + 100}\n" for a, b, c in q))
+    d = load(path)
+    assert np.array_equal(d.points, q) and np.array_equal(d.values, q[:, 0])
+    assert np.array_equal(load(path, array="Value").values, q[:, 0] + 100)
+
+
+def test_a_nrrd_without_space_directions_is_placed_by_its_axis_mins_and_maxs(tmp_path):
+    """Per axis: ``spacings`` and ``axis mins`` (a node-centred axis starts at its min, a
+    cell-centred one, the format's default, half a spacing past it), or a spacing from
+    ``axis mins`` and ``axis maxs``."""
+    import nrrd
+
+    v = np.random.default_rng(0).random((4, 5, 6))
+    nrrd.write(str(tmp_path / "a.nrrd"), v, {"spacings": [2.0, 3.0, 4.0], "axis mins": [5.0, 6.0, 7.0],
+                                             "centerings": ["node", "cell", "???"]})
+    nrrd.write(str(tmp_path / "b.nrrd"), v, {"axis mins": [5.0, 6.0, 7.0], "axis maxs": [11.0, 16.0, 31.0]})
+    for name, origin, spacing in (("a", (5.0, 7.5, 9.0), (2.0, 3.0, 4.0)), ("b", (5.75, 7.0, 9.0), (1.5, 2.0, 4.0))):
+        d = load(tmp_path / f"{name}.nrrd")
+        assert np.allclose(d.origin, origin, rtol=0, atol=1e-12) and np.allclose(d.spacing, spacing, rtol=0, atol=1e-12)
+        assert np.array_equal(d.values.reshape(4, 5, 6), v)
+
+
 def test_vtu_csv_and_npz_point_ids_are_rows(tmp_path):
     rng = np.random.default_rng(3)
     pts = rng.random((120, 3)) * [1, 2, 3] + [5, 0, -1]

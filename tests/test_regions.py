@@ -281,6 +281,18 @@ def _check_converted(store, whole: PointData, dtype):
     _check_regions(vol, whole, _regions_of(whole.shape) + [tuple((0, s) for s in whole.shape)])
 
 
+def test_convert_stores_long_double_values_as_float64_where_they_fit_it(tmp_path):
+    """Zarr has no float wider than 64 bits: a long-double volume whose values float64 holds
+    exactly is stored as float64, the same values (one that float64 would round is refused: a
+    hostile case)."""
+    v = np.linspace(-3, 5, 60).astype(np.longdouble).reshape(3, 4, 5)
+    np.save(tmp_path / "ld.npy", v)
+    store = convert(tmp_path / "ld.npy", tmp_path / "ld.zarr")
+    vol = open_volume(store)
+    assert vol.dtype == np.float64
+    assert np.array_equal(vol.read(((0, 3), (0, 4), (0, 5))), v.astype(np.float64))
+
+
 def test_convert_round_trips_exactly(tmp_path):
     """NIfTI (flips, permutation, scaling), NRRD, .vti and .npy: every point's coordinates,
     value and original id in the Zarr store are io.load's of the original."""

@@ -527,7 +527,7 @@ BLOCKS_KEYS = ("input", "function", "n", "array", "volume", "block", "tol_inf", 
 
 
 def _cmd_blocks(a, snakemake_args):
-    from .blocks import run_workflow
+    from .blocks import check_types, run_workflow
 
     config = {}
     if a.config:
@@ -537,6 +537,7 @@ def _cmd_blocks(a, snakemake_args):
             config[key] = getattr(a, key)
     if a.no_merged:
         config["merged"] = False
+    check_types(config)
     if (config.get("input") is None) == (config.get("function") is None):
         raise InputError("give either an input volume or --function (and --n), not both")
     if config.get("function") is not None and config.get("n") is None:

@@ -23,7 +23,7 @@ from .exceptions import InputError, shown
 from .functions import FUNCTIONS, resolve_function
 
 __all__ = ["PointData", "sample_grid", "grid_from_array", "check_grid_geometry", "scattered", "points_values",
-           "check_exact_integers", "plain_tuple", "EXACT_INTEGER"]
+           "check_float64_exact", "plain_tuple", "EXACT_INTEGER"]
 
 
 @dataclass
@@ -148,11 +148,21 @@ def sample_grid(function, n: int = 16) -> PointData:
 EXACT_INTEGER = 2**53
 
 
-def check_exact_integers(a, place) -> None:
-    """One-line InputError when the integer array ``a`` holds a value that float64 cannot hold
-    exactly (beyond 2^53 in magnitude), instead of rounding it; ``place(index)`` names where the
-    first such value is (``"grid index (1, 2, 3) of 'x.npy'"``).  Other arrays pass."""
+def check_float64_exact(a, place) -> None:
+    """One-line InputError when the array ``a`` holds a value that float64 cannot hold exactly,
+    instead of rounding it: an integer beyond 2^53 in magnitude, or a float wider than 64 bits
+    (long double) that float64 would round; ``place(index)`` names where the first such value is
+    (``"grid index (1, 2, 3) of 'x.npy'"``).  Other arrays pass."""
     a = np.asarray(a)
+    if a.dtype.kind == "f" and a.dtype.itemsize > 8:
+        with np.errstate(over="ignore", invalid="ignore"):
+            rounded = a.astype(np.float64).astype(a.dtype) != a
+        rounded &= ~np.isnan(a)
+        if rounded.any():
+            at = tuple(int(i) for i in np.argwhere(rounded)[0])
+            raise InputError(f"value {np.format_float_positional(a[at])} at {place(at)} has more precision than "
+                             "float64 holds: it would be rounded")
+        return
     if a.dtype.kind == "O":  # Python integers beyond 64 bits (a CSV column of them)
         big = np.array([isinstance(x, numbers.Integral) and abs(int(x)) > EXACT_INTEGER for x in a.ravel()],
                        bool).reshape(a.shape)
@@ -170,11 +180,11 @@ def check_exact_integers(a, place) -> None:
 def _real_array(a, name, place=None):
     """``a`` as float64; complex, boolean, text or object data are refused instead of
     being cast (a cast would drop imaginary parts or reinterpret the data), and so are
-    integers that float64 cannot hold exactly (:func:`check_exact_integers`)."""
+    integers that float64 cannot hold exactly (:func:`check_float64_exact`)."""
     arr = np.asarray(a)
     if arr.dtype.kind not in "iuf":
         raise InputError(f"{name} must be real numbers, got an array of dtype {arr.dtype}")
-    check_exact_integers(arr, place or (lambda at: f"index {at} of the {name}"))
+    check_float64_exact(arr, place or (lambda at: f"index {at} of the {name}"))
     return arr.astype(float, copy=False)
 
 
@@ -189,6 +199,11 @@ def check_grid_geometry(shape, origin, spacing):
     def text(v):
         return "(" + ", ".join(repr(float(x)) for x in np.ravel(v)) + ")"
 
+    for what, v in (("origin", origin), ("spacing", spacing)):  # real numbers: not complex, not true/false
+        a = np.asarray(v)
+        if a.dtype.kind not in "iuf" and not (a.dtype.kind == "O" and all(
+                isinstance(x, numbers.Real) and not isinstance(x, (bool, np.bool_)) for x in a.ravel())):
+            raise InputError(f"grid {what} must be real numbers, got {a.dtype} values {shown(a)}")
     try:
         o = np.asarray(origin, float)
         sp = np.asarray(spacing, float)

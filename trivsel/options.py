@@ -44,19 +44,22 @@ METHOD_DEFAULT = "method's default"
 #: methods whose module says ``INSERTS = True`` (:mod:`trivsel.methods`), so that a new
 #: inserting method takes them without a change here.
 INSERTING = "inserting"
+#: The largest integer option: what an int64 holds
+INT_MAX = 2**63 - 1
 
 
-def _option(default, doc, *, kind, choices=None, paper=None, tag, flag=None, minimum=None, sequence=False,
-            methods=None):
+def _option(default, doc, *, kind, choices=None, paper=None, tag, flag=None, minimum=None, maximum=None,
+            sequence=False, methods=None):
     """A dataclass field with the metadata of one option.
 
     ``kind`` is ``"choice"``, ``"bool"``, ``"int"`` or ``"float"``; ``sequence``
-    means the value is a tuple of choices (``values``).  ``minimum`` bounds numbers
-    from below (inclusive).  ``methods`` names the methods the option applies to
+    means the value is a tuple of choices (``values``).  ``minimum`` and ``maximum`` bound
+    numbers (inclusive); an integer is at most ``INT_MAX`` unless its ``maximum`` says less.  ``methods`` names the methods the option applies to
     (``None``: every method); setting it for another method is an error.
     """
     meta = dict(doc=doc, kind=kind, choices=None if choices is None else tuple(choices), paper=paper, tag=tag,
-                flag=flag, minimum=minimum, sequence=sequence,
+                flag=flag, minimum=minimum, maximum=INT_MAX if maximum is None and kind == "int" else maximum,
+                sequence=sequence,
                 methods=methods if methods in (None, INSERTING) else tuple(methods))
     return field(default=default, metadata=meta)
 
@@ -132,8 +135,9 @@ class Options:
         "value range), so that gains at rounding level cannot cycle",
         kind="float", minimum=0.0, paper="section 4", tag="reltol", methods=INSERTING)
     quantum: float = _option(
-        1e-9, "relative step to which K is rounded before sorting, so that rounding noise stays a tie",
-        kind="float", minimum=0.0, paper="section 3", tag="quantum", methods=("paper",))
+        1e-9, "relative step to which K is rounded before sorting, so that rounding noise stays a tie (at "
+        "least 1e-15: a finer step is below the curvatures' own rounding, and K / step must stay an int64)",
+        kind="float", minimum=1e-15, paper="section 3", tag="quantum", methods=("paper",))
     seed: int = _option(
         0, "seed of the random tie order and of the random ranking",
         kind="int", minimum=0, tag="seed", methods=("paper",))
@@ -153,7 +157,7 @@ class Options:
         "by region (docs/methods.md), for about 100 bytes per point besides, where one piece takes 1000. One "
         "count or fraction, and/or tol_rms (a squared-error budget the stages share) and tol_inf; not criterion "
         "'max' or candidates 'interior'",
-        kind="int", minimum=0, tag="block", methods=("decimate",))
+        kind="int", minimum=0, maximum=2**31 - 1, tag="block", methods=("decimate",))
     boundary_flips: bool | None = _option(
         None, "also flip an edge between two coplanar hull faces to the other diagonal of their "
         "quadrilateral (2-2 flip), so that the boundary's triangulation adapts too",
@@ -331,6 +335,8 @@ def _check(f, v):
             raise InputError(f"{name} must be finite, got {shown(v)}")
     if meta["minimum"] is not None and v < meta["minimum"]:
         raise InputError(f"{name} must be >= {meta['minimum']:g}, got {shown(v)}")
+    if meta["maximum"] is not None and v > meta["maximum"]:
+        raise InputError(f"{name} must be <= {meta['maximum']}, got {shown(v)}")
     return v
 
 
@@ -422,6 +428,8 @@ def config_schema() -> dict:
             item = {"type": "number"}
         if meta["minimum"] is not None:
             item["minimum"] = meta["minimum"]
+        if meta["maximum"] is not None:
+            item["maximum"] = meta["maximum"]
         if meta["sequence"]:
             item = {"type": "array", "items": item, "minItems": 1, "uniqueItems": True}
         if f.default is None:
@@ -464,7 +472,8 @@ def options_markdown() -> str:
             elif meta["kind"] == "bool":
                 values = "true, false"
             else:
-                values = f"{meta['kind']} >= {meta['minimum']:g}"
+                values = f"{meta['kind']} >= {meta['minimum']:g}" + (
+                    f", <= {meta['maximum']}" if meta["maximum"] is not None else "")
             lines.append(f"| `{f.name}` | `{flag}` | {_default_text(f)} | {values} | {meta['paper'] or '-'} "
                          f"| {meta['doc']} |")
     lines += ["", "Method defaults (the fields shown as \"" + METHOD_DEFAULT + "\"):", ""]

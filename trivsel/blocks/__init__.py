@@ -36,6 +36,7 @@ writes it (:meth:`trivsel.io.regions.Volume.file_ids`).
 from __future__ import annotations
 
 import json
+import numbers
 import os
 import re
 from dataclasses import dataclass
@@ -52,6 +53,8 @@ __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block",
 
 #: The volume's source, as :func:`trivsel.io.regions.open_volume` takes it.
 SOURCE_KEYS = ("input", "function", "n", "array", "volume")
+#: The largest block size (grid intervals per block) a run takes
+MAX_BLOCK = 2**31 - 1
 #: Stops besides ``tol_inf``, for methods with stages of their own in blocks (``BLOCK_STAGES``)
 STOP_KEYS = ("count", "fraction", "tol_rms", "values")
 
@@ -131,7 +134,8 @@ def plan_blocks(shape, block) -> Plan:
     """
     shape = tuple(int(s) for s in shape)
     if len(shape) != 3 or min(shape) < 3:
-        raise InputError(f"blocks need a 3-D grid of at least 3 points per axis, got shape {shape}")
+        raise InputError(f"blocks need a 3-D grid of at least 3 points per axis, got shape {shape} (one process "
+                         "takes any grid: trivsel reduce; so does --method decimate in blocks)")
     sizes = np.broadcast_to(np.asarray(block), (3,))
     if sizes.dtype.kind not in "iu" or np.any(sizes < 2):
         raise InputError(f"block size must be an integer >= 2 (grid intervals per block), got {shown(block)}")
@@ -575,12 +579,10 @@ CHECK_READ_BYTES = 64 * 2**20
 def check_values(vol):
     """Read a volume through once, slab by slab, before any job: a non-finite value, or an
     integer that float64 cannot hold exactly (beyond 2^53), is refused naming it and its grid
-    index (:meth:`trivsel.io.regions.Volume.read` checks each slab), so that no job fails on it
-    after others have run.  Integers of up to 32 bits and booleans are exact and finite: they
-    are not read."""
-    dtype = np.dtype(vol.dtype)
-    if dtype.kind == "b" or (dtype.kind in "iu" and dtype.itemsize < 8):
-        return
+    index (:meth:`trivsel.io.regions.Volume.read` checks each slab), and so is a file that
+    cannot be read to its end (truncated, a damaged chunk), so that no job fails on it after
+    others have run.  Integers of up to 32 bits are exact and finite, but they are read too: a
+    file's damage shows only when it is read."""
     from ..resources import check_memory
 
     axis = vol.slab_axis
@@ -610,6 +612,15 @@ def check_tolerance(name, tol):
         raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
 
 
+def check_types(config):
+    """One-line InputError when ``input`` or ``array`` of a run's configuration is not a
+    non-empty string (a YAML value may be of any type)."""
+    for key, what in (("input", "a path"), ("array", "an array's name")):
+        v = config.get(key)
+        if v is not None and (not isinstance(v, str) or not v):
+            raise InputError(f"{key} must be {what} (a non-empty string), got {shown(v)}")
+
+
 def make_config(config):
     """Check a blocked run's configuration and complete it (no file is written).
 
@@ -621,6 +632,11 @@ def make_config(config):
     """
     from ..methods import METHODS, get_method
 
+    check_types(config)
+    block = config.get("block")
+    if isinstance(block, bool) or not isinstance(block, numbers.Integral) or not 2 <= block <= MAX_BLOCK:
+        raise InputError(f"block must be an integer from 2 to {MAX_BLOCK} (grid intervals per block), "
+                         f"got {shown(block)}")
     cfg = {k: config.get(k) for k in SOURCE_KEYS}
     method = config.get("method", "greedy")
     stages = getattr(get_method(method), "BLOCK_STAGES", None)  # a method's own stages in blocks
@@ -1223,12 +1239,15 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             if plan_in != out:
                 shutil.rmtree(plan_in, ignore_errors=True)
 
+    made = [d for d in (out, *out.parents) if not d.exists()]  # the folders this run makes
     out.mkdir(parents=True, exist_ok=True)
     lock = _lock_folder(out)
+    fresh = False
     try:
         check_run_folder(out, full)  # again, now that no other run can change it
         if not (out / CONFIG).exists():
             _atomic_write_text(out / CONFIG, json.dumps(full, indent=1))
+            fresh = True
         _remove_run_temporaries(out)
         if any((out / ".snakemake" / "locks").glob("*")):  # left by a killed run; no run holds the folder
             subprocess.run(command(out, "--unlock"), capture_output=True, check=False)
@@ -1268,10 +1287,26 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
         if failure is not None and on_slurm:
             failure = _slurm_failure(prefix, started, out, failure)
         if failure is not None:
+            if fresh and not any((out / d).exists() for d in ("logs", "benchmarks")):
+                _remove_unstarted_run(out, made)  # Snakemake stopped before any job (its arguments)
             raise failure
         return done
     finally:
         os.close(lock)
+
+
+def _remove_unstarted_run(out, made):
+    """Take back what a run that ended before any job began wrote: its configuration and
+    Snakemake's folder, and the folders it made (``made``, deepest first), if empty then."""
+    import shutil
+
+    (out / CONFIG).unlink(missing_ok=True)
+    shutil.rmtree(out / ".snakemake", ignore_errors=True)
+    for d in made:
+        try:
+            d.rmdir()
+        except OSError:
+            break
 
 
 def _stages(full):

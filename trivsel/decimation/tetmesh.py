@@ -4,7 +4,8 @@
   (:func:`trivsel.triangulation.start_tetrahedra`); its domain is their convex hull.
 * A mesh read from a file: its own tetrahedra, whose domain may be non-convex.  Each is
   oriented positively by the exact predicate; a flat one, one with a repeated or unknown
-  vertex, or a face shared by more than two tetrahedra is refused with one line.
+  vertex, a face shared by more than two tetrahedra, or two tetrahedra on the same side of
+  their shared face (folded) is refused with one line.
 
 Points that are no tetrahedron's vertex (Qhull leaves out points it deems coplanar with a
 facet; a file may list points its cells do not use) are located in the tetrahedron that
@@ -30,7 +31,7 @@ def mesh_volume(points, tets):
 def check_tetrahedra_of_file(points, tets, place="the mesh"):
     """``(tets, boundary)``: ``tets`` (M, 4) of ``points`` positively oriented, after one-line
     checks (indices in range, four distinct vertices, no zero volume (exact), no face in more
-    than two), and their boundary triangles, oriented outward as
+    than two, none folded: :func:`_check_unfolded`), and their boundary triangles, oriented outward as
     :func:`trivsel.triangulation.boundary_triangles` gives them, from the same face count."""
     from ..triangulation import _exact_signs, face_multiplicity
 
@@ -58,7 +59,25 @@ def check_tetrahedra_of_file(points, tets, place="the mesh"):
         k = int(np.argmax(counts > 2))
         raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle {sorted(faces[k].tolist())} is a "
                          f"face of {int(counts[k])} tetrahedra")
+    _check_unfolded(t, faces, place)
     return t, faces[counts == 1]
+
+
+def _check_unfolded(t, faces, place):
+    """One-line InputError when two of the positively oriented tetrahedra ``t`` fold over their
+    shared face: they lie on the same side of it (its two oriented copies in ``faces``, the
+    face opposite each local vertex, wind the same way; exact).  Tetrahedra that overlap
+    without sharing a face are not looked for."""
+    order = np.argsort(faces, axis=1)
+    d = np.diff(np.concatenate([order, order[:, :1]], axis=1), axis=1)
+    parity = d[:, 0] * d[:, 1] * d[:, 2] > 0  # the winding of each copy against its sorted vertices
+    key = np.sort(faces, axis=1)
+    o = np.lexsort(key.T[::-1])
+    same = np.flatnonzero((key[o[1:]] == key[o[:-1]]).all(axis=1) & (parity[o[1:]] == parity[o[:-1]]))
+    if len(same):
+        a, b = (int(o[same[0] + j]) % len(t) for j in (0, 1))
+        raise InputError(f"{place} is folded: tetrahedra {a} and {b} share triangle {key[o[same[0]]].tolist()} and "
+                         "lie on the same side of it")
 
 
 def locate_points(points, tets, which, place="the mesh"):

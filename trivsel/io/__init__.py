@@ -63,7 +63,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import PointData, check_exact_integers, grid_from_array, plain_tuple, scattered
+from ..data import PointData, check_float64_exact, grid_from_array, plain_tuple, scattered
 from ..exceptions import InputError, one_line, shown
 from ..resources import GRID_BYTES_PER_POINT, check_memory
 
@@ -101,13 +101,13 @@ def _read_csv(p, array):
     try:
         df = pd.read_csv(p)
     except Exception as exc:  # pandas raises many types
-        raise InputError(f"cannot read CSV {str(p)!r}: {exc}") from None
-    cols = {c.strip().lower(): c for c in df.columns}
-    missing = [c for c in ("x", "y", "z") if c not in cols]
+        raise InputError(f"cannot read CSV {str(p)!r}: {one_line(exc)}") from None
+    cols = {c: _csv_column(df.columns, c, p) for c in ("x", "y", "z", "value")}
+    missing = [c for c in ("x", "y", "z") if cols[c] is None]
     if missing:
         raise InputError(f"CSV {str(p)!r} lacks column(s) {', '.join(missing)}; need x, y, z and a value column")
-    others = [c for c in df.columns if c.strip().lower() not in ("x", "y", "z")]
-    if array is None and "value" in cols:
+    others = [c for c in df.columns if c not in (cols["x"], cols["y"], cols["z"])]
+    if array is None and cols["value"] is not None:
         array = cols["value"]
     col = _pick_array(others, array, p)
     try:
@@ -119,13 +119,30 @@ def _read_csv(p, array):
     return scattered(pts, vals, name=p.stem)
 
 
+def _csv_column(columns, name, p):
+    """The column of a CSV that ``name`` (x, y, z or value) means: the one named so exactly (spaces
+    around it aside), else the one named so in other case; None if there is none, and a one-line
+    InputError if two could be meant."""
+    for match in (lambda c: c.strip() == name, lambda c: c.strip().lower() == name):
+        found = [c for c in columns if match(c)]
+        if len(found) > 1:
+            raise InputError(f"CSV {str(p)!r} has {len(found)} columns that could be {name!r} "
+                             f"({', '.join(map(repr, found))}): rename all but one")
+        if found:
+            return found[0]
+    return None
+
+
 def _number_column(column, p):
     """A CSV column as numbers: integers as pandas read them (checked later), integers beyond
-    64 bits (kept as Python ints) refused, anything else converted to float (text: ValueError)."""
+    64 bits (kept as Python ints) refused, true/false refused, anything else converted to float
+    (text: ValueError)."""
     a = column.to_numpy()
+    if a.dtype.kind == "b" or (a.dtype.kind == "O" and any(isinstance(x, (bool, np.bool_)) for x in a)):
+        raise ValueError(f"column {column.name!r} holds true/false, not numbers")
     if a.dtype.kind in "iuf":
         return a
-    check_exact_integers(a, lambda at: f"point {at[0]} of {_stem(p)!r}")
+    check_float64_exact(a, lambda at: f"point {at[0]} of {_stem(p)!r}")
     return a.astype(float)
 
 
@@ -196,6 +213,9 @@ def _read_npz(p, array):
     name = str(arrays["name"]) if "name" in arrays else p.stem
     if v.ndim == 3:
         return grid_from_array(v, arrays.get("origin", (0, 0, 0)), arrays.get("spacing", (1, 1, 1)), name=name)
+    if v.ndim != 1:
+        raise InputError(f"{str(p)!r}: {key!r} has shape {v.shape}: need a 3-D grid, or 1-D values beside a "
+                         "'points' array (N x 3)")
     if "points" not in arrays:
         raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
     return scattered(arrays["points"], v, name=name)
@@ -556,6 +576,12 @@ def _nifti_header(p, img, volume, stored=None):
     _check_voxel_dtype(p, dtype)
     k = _volume_index(p, shape, volume)
     stored = hdr if stored is None else stored
+    slope, inter = (float(stored[k]) for k in ("scl_slope", "scl_inter"))
+    if np.isinf(slope):
+        # the standard scales every voxel by a non-zero slope (a NaN one is read as unset, as
+        # nibabel and other readers do); nibabel would read an infinite one as none too
+        raise InputError(f"{str(p)!r} has a non-finite scaling (scl_slope = {slope!r}, scl_inter = {inter!r}): "
+                         "its values would not be finite numbers")
     pixdim = np.asarray(stored["pixdim"][1:4], float)
     if int(stored["sform_code"]) == 0 and not (np.all(np.isfinite(pixdim)) and np.all(pixdim != 0)):
         # the qform and method 1 scale by pixdim; nibabel would silently take 1 for a 0
@@ -585,7 +611,7 @@ def _nifti_grid(p, img, shape, k, affine, volume, name) -> PointData:
                  f"reading {str(p)!r} (shape {tuple(shape)})")
     try:
         if dtype.kind in "iu" and dtype.itemsize > 4:  # as stored: float64 would round beyond 2^53
-            check_exact_integers(img.dataobj.get_unscaled(), lambda at: f"voxel {at} of {str(p)!r}")
+            check_float64_exact(img.dataobj.get_unscaled(), lambda at: f"voxel {at} of {str(p)!r}")
         values = np.asarray(img.get_fdata(dtype=np.float64))
     except InputError:
         raise
@@ -618,18 +644,34 @@ def _nrrd_axes(p, header):
 
 def nrrd_placement(p, header, spatial):
     """``(matrix, origin, what)``: a NRRD image's index-to-world placement over its spatial
-    axes, from ``space directions`` and ``space origin``, or else from ``spacings`` (1 where
-    unknown) with the origin at 0; ``what`` names the source for error messages."""
+    axes, from ``space directions`` and ``space origin``; without them, per axis, from
+    ``spacings`` and ``axis mins`` (a cell-centred axis's first sample half a spacing past its
+    min: ``centerings``, cell where unknown, as the NRRD format's default), a spacing from
+    ``axis mins`` and ``axis maxs`` where none is given, else 1 and the origin at 0; ``what``
+    names the source for error messages."""
     dirs = header.get("space directions")
     if dirs is not None:
         rows = [np.asarray(dirs[a], float) for a in spatial]
         if any(r.shape != (3,) for r in rows):
             raise InputError(f"{str(p)!r} has a {rows[0].size}-D space: need a 3-D space")
-        matrix, what = np.stack(rows, axis=1), "space directions (as columns)"
-    else:
-        spacings = np.asarray(header.get("spacings", [np.nan] * len(header["sizes"])), float)[spatial]
-        matrix, what = np.diag(np.where(np.isnan(spacings), 1.0, spacings)), "spacings"
-    return matrix, np.asarray(header.get("space origin", np.zeros(3)), float), what
+        return (np.stack(rows, axis=1), np.asarray(header.get("space origin", np.zeros(3)), float),
+                "space directions (as columns)")
+    n_axes = len(header["sizes"])
+
+    def field(name):
+        return np.asarray(header.get(name, [np.nan] * n_axes), float)[spatial]
+
+    spacings, mins, maxs = field("spacings"), field("axis mins"), field("axis maxs")
+    cell = np.array([str(c).lower() != "node" for c in np.asarray(header.get("centerings", ["???"] * n_axes),
+                                                                   object)[spatial]])
+    sizes = np.asarray(header["sizes"], float)[spatial]
+    span = np.where(cell, sizes, sizes - 1)  # spacings between the axis min and max
+    with np.errstate(divide="ignore", invalid="ignore"):
+        spacings = np.where(np.isnan(spacings) & (span > 0), (maxs - mins) / span, spacings)
+    spacings = np.where(np.isnan(spacings), 1.0, spacings)
+    origin = np.where(np.isnan(mins), 0.0, mins + np.where(cell, 0.5 * spacings, 0.0))
+    what = "spacings" if np.all(np.isnan(field("axis mins"))) else "spacings and axis mins"
+    return np.diag(spacings), origin, what
 
 
 def _read_nrrd(p, array, *, volume=None):
@@ -695,6 +737,13 @@ def _suffix(p) -> str:
     return double if double in READERS else p.suffix.lower()
 
 
+def check_not_a_folder(p):
+    """One-line InputError when the input ``p``, named as a file of its suffix, is a folder (only a
+    Zarr store is one)."""
+    if Path(p).is_dir() and _suffix(Path(p)) != ".zarr":
+        raise InputError(f"input {str(p)!r} is a folder, not a {_suffix(Path(p))} file")
+
+
 def load(path, array: str | None = None, *, volume: int | None = None) -> PointData:
     """Read a user file into :class:`~trivsel.data.PointData` by its suffix (:data:`READERS`;
     see the module docstring).
@@ -724,6 +773,7 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
     if reader is None:
         raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: "
                          f"read {', '.join(READERS)}")
+    check_not_a_folder(p)
     if volume is None:
         return reader(p, array)
     if isinstance(volume, bool) or not isinstance(volume, numbers.Integral):

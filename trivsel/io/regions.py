@@ -53,7 +53,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..data import PointData, check_exact_integers, check_grid_geometry
+from ..data import PointData, check_float64_exact, check_grid_geometry
 from ..exceptions import InputError, one_line, shown
 
 __all__ = ["Volume", "RegionData", "open_volume", "check_region", "convert"]
@@ -183,6 +183,9 @@ class Volume:
         except (InputError, MemoryError):
             raise
         except Exception as exc:  # truncated files, damaged chunks, I/O errors
+            # a damaged Zarr chunk leaves the read's other tasks in zarr's event loop: let them end,
+            # or asyncio reports each on stderr when the process exits
+            _settle_zarr()
             raise InputError(f"cannot read region {r} of {self.source!r}: {one_line(exc)}") from None
         return _exact_float(block, r, self.source)
 
@@ -228,7 +231,7 @@ def _exact_float(block, region, source):
     if block.dtype.kind not in "iuf":
         raise InputError(f"{source!r} holds values of type {block.dtype}: need real numbers")
     start = np.array([a for a, _ in region])
-    check_exact_integers(block, lambda at: f"grid index {tuple((np.array(at) + start).tolist())} of {source!r}")
+    check_float64_exact(block, lambda at: f"grid index {tuple((np.array(at) + start).tolist())} of {source!r}")
     values = block.astype(np.float64)  # a copy: never a view of a memory map
     if not np.all(np.isfinite(values)):
         at = np.argwhere(~np.isfinite(values))[0]
@@ -274,7 +277,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     p = Path(path)
     if not p.exists():
         raise InputError(f"input file {str(p)!r} does not exist")
-    from . import READERS, _suffix
+    from . import READERS, _suffix, check_not_a_folder
 
     suffix = _suffix(p)
     if suffix == ".zarr" or (p.is_dir() and any((p / f).exists() for f in ("zarr.json", ".zarray", ".zgroup"))):
@@ -290,6 +293,8 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     else:
         raise InputError(f"unsupported file type {p.suffix or p.name!r} of {str(p)!r}: read "
                          f"{', '.join(dict.fromkeys(['.zarr', '.npy', *READERS]))}")
+    if opener is not _zarr_volume:
+        check_not_a_folder(p)
     if opener in (_zarr_volume, _npy_volume) and volume is not None:
         raise InputError(f"--volume {volume} applies to 4-D NIfTI and NRRD images, not to {str(p)!r}")
     return opener(p, array, volume)
@@ -656,7 +661,9 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         remove_dead_temporaries(out.parent)
         tmp = Path(tempfile.mkdtemp(prefix=temporary_prefix(out.name), dir=out.parent))
         t0 = time.perf_counter()
-        candidates = [vol.dtype] + ([np.dtype(np.float64)] if vol.dtype != np.float64 else [])
+        # a long double is stored as float64 (Zarr has no wider float), where every value fits it exactly
+        wide = vol.dtype.kind == "f" and vol.dtype.itemsize > 8
+        candidates = ([] if wide else [vol.dtype]) + ([np.dtype(np.float64)] if vol.dtype != np.float64 else [])
         for dtype in candidates:
             if _write_zarr(vol, tmp, chunk, dtype):
                 break

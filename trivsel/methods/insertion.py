@@ -161,6 +161,9 @@ def run_insertion(method, problem):
         except MeshError as exc:
             if not run.grow(exc.code):
                 raise
+        except ZeroDivisionError:  # the kernels' weights in a tetrahedron whose volume rounds to zero
+            raise InputError(f"the points are too near a plane or a line for {method.NAME!r}: a tetrahedron of "
+                             "their mesh has no volume in floating point; --method decimate takes them") from None
     else:  # pragma: no cover - capacities doubled 4 times
         raise RuntimeError("mesh capacity could not be satisfied")
     t_total = time.perf_counter() - problem.t_start
