@@ -316,19 +316,19 @@ def _blocks_hint(a, chosen, available):
     import shlex
 
     from .blocks import SUGGESTED_BLOCKS
+    from .io.regions import open_volume
 
     if a.boundary is not None:
         return None
     if a.input is not None:
-        from .io.regions import open_volume
-
         try:
-            open_volume(a.input, array=a.array, volume=a.volume)  # its header: is it a grid?
+            shape = open_volume(a.input, array=a.array, volume=a.volume).shape  # its header: is it a grid?
         except InputError:
             return None
         source = [a.input] + (["--array", a.array] if a.array else []) + (
             ["--volume", str(a.volume)] if a.volume is not None else [])
     else:
+        shape = open_volume(function=a.function, n=a.n).shape
         source = ["--function", str(a.function), "--n", str(a.n)]
     if chosen == "decimate" and (a.count is not None) + len(a.fractions or ()) <= 1:
         # decimate's own stages in blocks: as jobs, or in this process where they fit
@@ -341,12 +341,12 @@ def _blocks_hint(a, chosen, available):
         # the largest block whose region jobs fit a core's share, and every other job here too
         # (the step and last jobs hold arrays over the whole grid)
         sizes = [b for b in SUGGESTED_BLOCKS if b <= jobs_block(available)]
-        needs = [_decimate_jobs_memory(a, source, b) for b in sizes]
+        needs = [_decimate_jobs_memory(a, shape, b) for b in sizes]
         fit = [b for b, need in zip(sizes, needs) if max(need.values()) <= available]
         least = min(range(len(sizes)), key=lambda i: max(needs[i].values()))  # when none fits: the least
         cmd = ["trivsel", "blocks", *source, "--method", "decimate", "--block", str(fit[0] if fit else sizes[least]),
                *stop, *(["--values", *a.values] if a.values else []), "--out", a.out, "-c", "2"]
-        block = _decimate_block_for_memory(a, source, available)
+        block = _decimate_block_for_memory(a, shape, available)
         one = ""
         if block is not None:
             argv = [x for i, x in enumerate(a.argv)  # the same command, its --block replaced
@@ -357,40 +357,34 @@ def _blocks_hint(a, chosen, available):
             need = needs[least][kind]
             return (f"decimate in blocks ({shlex.join(cmd)}) needs about {need / 2**30:.3g} GiB for its {kind} job, "
                     f"so run it where a job may have that much{one}; here, in bounded memory: "
-                    + _greedy_blocks_hint(a, chosen, available, source))
+                    + _greedy_blocks_hint(a, chosen, available, source, shape))
         return "in blocks of bounded memory: " + shlex.join(cmd) + one
-    return "in blocks of bounded memory: " + _greedy_blocks_hint(a, chosen, available, source)
+    return "in blocks of bounded memory: " + _greedy_blocks_hint(a, chosen, available, source, shape)
 
 
-def _decimate_jobs_memory(a, source, block):
+def _decimate_jobs_memory(a, shape, block):
     """The memory of each kind of job of ``trivsel blocks --method decimate`` for the reduce
-    command ``a`` on the grid of ``source`` in blocks of ``block`` (bytes by kind)."""
+    command ``a`` on a grid of ``shape`` in blocks of ``block`` (bytes by kind)."""
     from .blocks.decimate import jobs_memory
-    from .io.regions import open_volume
 
-    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
-           else open_volume(function=a.function, n=a.n))
     cfg = {"count": a.count, "fraction": float(a.fractions[0]) if a.fractions else None, "tol_rms": a.tol_rms,
            "tol_inf": a.tol_inf, "values": list(a.values or ["data"])}
-    return jobs_memory(vol.shape, cfg, block)
+    return jobs_memory(shape, cfg, block)
 
 
-def _greedy_blocks_hint(a, chosen, available, source):
+def _greedy_blocks_hint(a, chosen, available, source, shape):
     """The phrase of :func:`_blocks_hint` for the methods that take the blocks' faces (their
-    jobs are bounded by the block at any grid size)."""
+    jobs are bounded by the block at any grid size), on a grid of ``shape``."""
     import shlex
 
     from .blocks import block_for_memory, job_resources, plan_blocks
-    from .io.regions import open_volume
     from .methods import METHODS, get_method
 
     able = [name for name, m in METHODS.items() if m.PRESCRIBED_BOUNDARY]
     method = chosen if get_method(chosen).PRESCRIBED_BOUNDARY else "greedy"
     tol = "TOL" if a.tol_inf is None else f"{float(a.tol_inf):g}"
     block = block_for_memory(available)
-    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
-           else open_volume(function=a.function, n=a.n))
-    plan = plan_blocks(vol.shape, block)
+    plan = plan_blocks(shape, block)
     # the merged mesh's job grows with the grid: without it where it does not fit and a job does
     merge, job = (job_resources(plan, kind)[0] * 2**20 for kind in ("merge", "kernels"))
     cmd = ["trivsel", "blocks", *source, "--block", str(block), "--tol-inf", tol, "--method", method,
@@ -403,22 +397,19 @@ def _greedy_blocks_hint(a, chosen, available, source):
     return shlex.join(cmd) + (f" ({'; '.join(notes)})" if notes else "")
 
 
-def _decimate_block_for_memory(a, source, available):
+def _decimate_block_for_memory(a, shape, available):
     """The largest ``--block`` (128 down to 16) with which ``decimate`` fits in ``available``
-    bytes on the grid of ``source``, or None (a stop that blocks do not take, or too large
-    even in blocks)."""
+    bytes on a grid of ``shape``, or None (a stop that blocks do not take, or too large even in
+    blocks)."""
     import math
     from types import SimpleNamespace
 
-    from .io.regions import open_volume
     from .methods.decimate import memory
     from .options import Options
 
     if (a.count is not None) + len(a.fractions or ()) > 1:
         return None
-    vol = (open_volume(source[0], array=a.array, volume=a.volume) if a.input is not None
-           else open_volume(function=a.function, n=a.n))
-    grid = SimpleNamespace(n_points=math.prod(vol.shape), is_grid=True, tets=None)
+    grid = SimpleNamespace(n_points=math.prod(shape), is_grid=True, tets=None)
     for block in (128, 96, 64, 48, 32, 16):
         opts = Options(method="decimate", block=block, values=tuple(a.values or ("data",)))
         if sum(b for b, _ in memory(grid, opts)) <= available:
