@@ -596,6 +596,14 @@ def _input_cases(tmp: Path):
          "has a non-finite scaling (scl_slope = inf, scl_inter = 0.0)"),
         ("npz of 4-D values", ["reduce", _write(tmp, "v4.npz", _npz(values=np.zeros((2, 2, 2, 2)))), *red], 2,
          "'values' has shape (2, 2, 2, 2): need a 3-D grid, or 1-D values beside a 'points' array"),
+        ("npz points with a NaN coordinate", ["reduce", _write(tmp, "pn.npz", _npz(points=np.where(
+            np.arange(150).reshape(50, 3) == 10, np.nan, p), values=f)), *red], 2,
+         ("non-finite coordinate in point 3: (0.9350724237877682, nan, ",)),
+        ("npz grid of a 3 x 1 spacing", ["reduce", _write(tmp, "s31.npz", _npz(values=np.zeros((3, 3, 3)),
+                                                                               spacing=np.ones((3, 1)))), *red], 2,
+         "grid spacing must be 3 positive finite numbers, got [[1.0], [1.0], [1.0]]"),
+        ("convert to a store named only .zarr", ["convert", _write(tmp, "g.npy", lambda q: np.save(q, np.zeros(
+            (3, 3, 3)))), str(tmp / "out" / ".zarr")], 2, "must be named *.zarr (a name before .zarr)"),
         ("a folded tetrahedral mesh", ["reduce", _write(tmp, "fold.vtu", _folded_mesh), "--method", "decimate", *red],
          2, "is folded: tetrahedra 0 and 1 share triangle [0, 1, 2] and lie on the same side of it"),
         ("blocks config whose input is a number", ["blocks", "--config", _write(tmp, "in5.yaml", _text(

@@ -196,8 +196,8 @@ def check_grid_geometry(shape, origin, spacing):
 
     Raises :class:`~trivsel.exceptions.InputError` naming the bad value.
     """
-    def text(v):
-        return "(" + ", ".join(repr(float(x)) for x in np.ravel(v)) + ")"
+    def text(v):  # a vector as a tuple; any other shape as it is
+        return "(" + ", ".join(repr(float(x)) for x in v) + ")" if np.ndim(v) == 1 else shown(np.asarray(v))
 
     for what, v in (("origin", origin), ("spacing", spacing)):  # real numbers: not complex, not true/false
         a = np.asarray(v)
@@ -284,7 +284,7 @@ def scattered(points, values, name="data") -> PointData:
         raise InputError(f"too few points: need at least 5 for a 3-D triangulation, got {p.shape[0]}")
     if not np.all(np.isfinite(p)):
         row = int(np.argwhere(~np.isfinite(p))[0, 0])
-        raise InputError(f"non-finite coordinate in point {row}: {tuple(p[row])}")
+        raise InputError(f"non-finite coordinate in point {row}: {tuple(p[row].tolist())}")
     if not np.all(np.isfinite(f)):
         row = int(np.argwhere(~np.isfinite(f))[0, 0])
         raise InputError(f"non-finite value {f[row]} at point {row}")

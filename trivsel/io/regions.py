@@ -635,7 +635,8 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         raise InputError(f"the output {str(out)!r} is empty: name a new *.zarr store")
     out = Path(out).expanduser()
     if out.suffix.lower() != ".zarr":
-        raise InputError(f"the output {str(out)!r} must be named *.zarr")
+        raise InputError(f"the output {str(out)!r} must be named *.zarr" + (
+            " (a name before .zarr)" if out.name.lower() == ".zarr" else ""))
     if out.exists() or out.is_symlink():
         raise InputError(f"the output {str(out)!r} exists: trivsel convert never overwrites; remove it or choose "
                          "another name")
