@@ -8,13 +8,18 @@ import shlex
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from trivsel.blocks import check_tetrahedra
 from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
 from trivsel.decimation.blocked import (SSE_SHARE, block_cuts, cut_counts, cut_quota, decimate_in_blocks, quality_note,
-                                        quota_limit, short_blocks, threshold)
+                                        quota_limit, running_sse, short_blocks, sse_at, streamed_cut_counts,
+                                        streamed_threshold, threshold, tied_counts)
 from trivsel.selection import count_for_fraction
+
+from conftest import examples
 
 
 def smooth_volume(shape, seed=3):
@@ -477,3 +482,76 @@ def test_the_first_quota_pass_recorded_to_the_share_gives_the_mesh_of_records_to
         for times in (2, 0):
             assert all(np.array_equal(ref[k], runs[times][0][k]) for k in ("vertices", "tets", "ptet"))
         assert runs[1][1] < runs[2][1] and runs[1][2] == 0 and runs[0][2] > 0
+
+
+@st.composite
+def recorded_blocks(draw):
+    """Blocks' records as the cut reads them: running maxima of costs (ties and empty records
+    among them), running squared errors, points off the seams, seam points, a target, a budget."""
+    k = draw(st.integers(1, 6))
+    levels = draw(st.integers(1, 40))
+    scale = draw(st.sampled_from([1.0, 0.37, 1e-3]))
+    runmax, sse, inner = [], [], []
+    for _ in range(k):
+        n = draw(st.integers(0, 150))
+        costs = draw(st.lists(st.integers(0, levels), min_size=n, max_size=n))
+        deltas = draw(st.lists(st.floats(-0.5, 2.0), min_size=n, max_size=n))
+        runmax.append(np.maximum.accumulate(np.sort(np.asarray(costs, float) * scale)) if n else np.zeros(0))
+        sse.append(running_sse(deltas))
+        inner.append(n + draw(st.integers(0, 30)))
+    seam = draw(st.integers(0, 200))
+    target = draw(st.none() | st.integers(0, sum(inner) + seam + 5))
+    most = sum(float(s[-1]) for s in sse if len(s))
+    budget = draw(st.just(np.inf) | st.floats(0.0, 1.5).map(lambda f: f * (most + 1e-9) / SSE_SHARE))
+    return runmax, sse, inner, seam, target, budget
+
+
+@settings(max_examples=examples(2.0), deadline=None)
+@given(recorded_blocks(), st.integers(1, 12), st.integers(1, 6))
+def test_the_streamed_cut_is_the_cut_of_records_held_whole(blocks, runs, queries):
+    """The cut job reads the blocks' records one at a time, keeping a sample of at most about
+    ``runs`` of them and counting ``queries`` costs a stream: the same threshold, the same
+    ``decided``, the same counts and squared error as of every record held at once, whatever
+    the ties, empty records and budget."""
+    runmax, sse, inner, seam, target, budget = blocks
+    streams = []
+
+    def read():
+        streams.append(1)
+        return zip(runmax, sse)
+
+    tau, decided = threshold(runmax, inner, seam, target, sse, budget)
+    assert streamed_threshold(read, inner, seam, target, budget, share=SSE_SHARE, runs=runs,
+                              queries=queries) == (tau, decided)
+    if np.isfinite(tau):
+        counts = cut_counts(runmax, tau, inner, seam, target)
+        assert streamed_cut_counts(read, tau, inner, seam, target, tied_counts) == (counts, sse_at(sse, counts))
+
+
+def test_a_stream_keeps_a_bounded_sample_of_the_records():
+    """Each stream of the cut keeps at most twice its runs (every m-th run of a block, m doubled
+    as the sample grows), and a few streams narrow a million recorded costs to the answer."""
+    from trivsel.decimation import streamcut
+
+    rng = np.random.default_rng(1)
+    runmax = [np.sort(rng.random(250_000)) for _ in range(4)]
+    sse = [running_sse(rng.random(len(r))) for r in runmax]
+    kept, streams = [], []
+    sample = streamcut._stream_sample
+
+    def spy(read, windows, runs):
+        out, largest = sample(read, windows, runs)
+        kept.extend(len(cat["cost"]) for cat, *_ in out)
+        return out, largest
+
+    def read():
+        streams.append(1)
+        return zip(runmax, sse)
+
+    inner = [len(r) + 10 for r in runmax]
+    want = threshold(runmax, inner, 5000, 300_000)
+    import unittest.mock as mock
+
+    with mock.patch.object(streamcut, "_stream_sample", spy):
+        assert streamed_threshold(read, inner, 5000, 300_000, share=SSE_SHARE, runs=1000) == want
+    assert max(kept) <= 2000 and 2 < len(streams) <= 12

@@ -4,6 +4,7 @@ errors and the fitted values of that mesh, as a conforming tetrahedralisation in
 
 import json
 import os
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -253,6 +254,43 @@ def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_
     for name, z in meshes.items():
         again = D._load(out / "meshes" / name)
         assert z.keys() == again.keys() and all(np.array_equal(z[k], again[k]) for k in z)
+
+
+def test_the_cut_job_reads_the_blocks_records_one_at_a_time(tmp_path, capsys, monkeypatch):
+    """The cut job holds a sample of the blocks' recorded costs, not every record: with the
+    sample cut to a few runs a block it reads the costs files in several streams, one block's
+    arrays at a time, and writes the same ``tau.json``, byte for byte (a count and a budget)."""
+    from trivsel.blocks import decimate as D
+    from trivsel.decimation import streamcut
+
+    for stop in (["--count", "3000"], ["--tol-rms", "0.002"]):
+        out = tmp_path / stop[0][2:]
+        assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", *stop,
+                     "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
+        capsys.readouterr()
+        before = (out / "tau.json").read_bytes()
+        reads, held = [], []
+        load = np.load
+
+        def spy(path, *a, **k):  # every costs file opened, and what is open at once
+            z = load(path, *a, **k)
+            if Path(path).parent.name == "costs":
+                reads.append(Path(path).name)
+            return z
+
+        monkeypatch.setattr(D.np, "load", spy)
+        monkeypatch.setattr(streamcut, "RUNS", 1)
+        monkeypatch.setattr(streamcut, "QUERIES", 2)
+        sample = streamcut._stream_sample
+        monkeypatch.setattr(streamcut, "_stream_sample",
+                            lambda *a: held.append(out_ := sample(*a)) or out_)
+        D.run_job(out, "cut")
+        monkeypatch.undo()
+        assert (out / "tau.json").read_bytes() == before
+        streams = reads.count("0.npz")
+        assert streams > 4 and all(reads.count(f"{s}.npz") == streams for s in range(3))
+        blocks = len(D.Stages(*D.read_config(out)).plan.blocks())
+        assert all(len(cat["cost"]) <= 2 * 4 * blocks for h, _ in held for cat, *_ in h)
 
 
 def _quota_pass_run(tmp_path, capsys):

@@ -33,8 +33,10 @@ of each region's mesh) and of ``plan.npz`` only what names its regions (``PLAN_O
 the quota job reads the regions' costs, not their meshes. A slab's job takes its blocks or
 regions one at a time: it reads each one's part of its input files (``_Members``) and writes
 its file one block or region at a time (``_atomic_savez_each``), so that its memory is that of
-one block or region, not of the slab. Only the step, cut, quota and last jobs hold arrays over
-the whole grid (owners and flags per point, the tetrahedra, the recorded costs), never a
+one block or region, not of the slab. The cut job reads the blocks' records one block at a
+time, a few times over, and keeps a bounded sample of their costs
+(:mod:`trivsel.decimation.streamcut`). Only the step, quota and last jobs hold arrays over the
+whole grid (owners and flags per point, the tetrahedra, the regions' recorded costs), never a
 decimation of it.
 """
 
@@ -74,6 +76,9 @@ STEP_BYTES_PER_POINT = 40
 STEP_BYTES_PER_TET = 80
 FINISH_BYTES_PER_POINT = 60
 FINISH_BYTES_PER_TET = 240
+#: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
+#: ``RUNS`` runs of 40 bytes, with the temporaries of their sort)
+CUT_SAMPLE_BYTES_PER_RUN = 160
 #: Tetrahedra per vertex of a decimated grid (5.6-5.9 measured; a Kuhn split has 6 per cell)
 TETS_PER_VERTEX = 6
 
@@ -305,39 +310,69 @@ def _block_record(vol, st, i, lo, hi, floor):
 
 
 def _cut(out, st):
-    """The threshold across the blocks' records; the blocks whose record stopped short of a
-    cost it compared are recorded again to their end here, one at a time, into
-    ``costs/whole.npz`` (which the mesh jobs read before their slab's file)."""
-    runmax, inner, sse, short = [], [], [], []
+    """The threshold across the blocks' records, read one block at a time (each stream of
+    :func:`trivsel.decimation.blocked.streamed_threshold` reads the costs files again): the job
+    holds a number or two per block, one block's record and a bounded sample of costs, not
+    every block's record.  The blocks whose record stopped short of a cost the cut compared are
+    recorded again to their end here, one at a time, into ``costs/whole.npz`` (which the mesh
+    jobs read before their slab's file)."""
     N = st.plan.n_points()
     target = st.target()
-    if st.costed:
+    if not st.costed:
+        _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(INF), "target": target, "counts": None,
+                                                         "sse": 0.0, "recorded_again": 0}))
+        return
+    blocks = [(slab, i) for slab in st.slabs for i, _, _ in st.blocks_of(slab)]
+    inner, short = [], []
+    for slab in st.slabs:
+        z = _load(out / "costs" / f"{slab}.npz", lambda k: k.startswith(("inner_", "short_")))
+        for i, _, _ in st.blocks_of(slab):
+            inner.append(int(z[f"inner_{i}"]))
+            # a run started before the floor was recorded has whole records
+            short.append(bool(z[f"short_{i}"]) if f"short_{i}" in z else False)
+    again_dir = out / "costs" / "again"
+    again = {}  # block -> its record to its end, in a file of its own
+
+    def read():  # every block's (runmax, sse) in block order, one block at a time
         for slab in st.slabs:
-            with np.load(out / "costs" / f"{slab}.npz", allow_pickle=False) as z:  # the costs only
+            with np.load(out / "costs" / f"{slab}.npz", allow_pickle=False) as z:
                 for i, _, _ in st.blocks_of(slab):
-                    runmax.append(z[f"runmax_{i}"])
-                    inner.append(int(z[f"inner_{i}"]))
+                    if i in again:
+                        rec = _load(again[i], (f"runmax_{i}", f"sse_{i}"))
+                        yield rec[f"runmax_{i}"], rec[f"sse_{i}"]
+                        continue
+                    r = z[f"runmax_{i}"]
                     # a run started before the errors were recorded has no budget: zeros stand in
-                    sse.append(z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(runmax[-1])))
-                    short.append(bool(z[f"short_{i}"]) if f"short_{i}" in z.files else False)
-    whole = {}
+                    yield r, (z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(r)))
 
-    def record_again(blocks):  # to their end, one at a time
-        vol = _open(st.cfg)
-        bounds = {i: (lo, hi) for slab in st.slabs for i, lo, hi in st.blocks_of(slab)}
-        for i in blocks:
-            rec = _block_record(vol, st, i, *bounds[i], 0.0)
-            whole.update(rec)
-            yield rec[f"runmax_{i}"], rec[f"sse_{i}"]
-
-    tau, again = B.threshold_of_whole_records(runmax, inner, N - sum(inner), B.aim(target, N, N - sum(inner)), sse,
-                                              st.budget(), short, record_again)
-    if st.costed:
-        _atomic_savez(out / "costs" / "whole.npz", **whole)
-    counts = B.cut_counts(runmax, tau, inner, N - sum(inner), target) if runmax else None
+    seam_points = N - sum(inner)
+    aim = B.aim(target, N, seam_points)
+    vol, bounds = None, {i: (lo, hi) for slab in st.slabs for i, lo, hi in st.blocks_of(slab)}
+    recorded_again = []
+    while True:  # once more at most: whole records are never short, and tau only falls
+        tau, decided = B.streamed_threshold(read, inner, seam_points, aim, st.budget(), share=B.SSE_SHARE)
+        ends = [r[-1:] for r, _ in read()] if any(short) else [np.zeros(0)] * len(blocks)
+        redo = B.short_blocks(ends, short, decided)
+        if not redo:
+            break
+        vol = _open(st.cfg) if vol is None else vol
+        for k in redo:  # to their end, one at a time
+            i = blocks[k][1]
+            path = again_dir / f"{i}.npz"
+            _atomic_savez(path, **_block_record(vol, st, i, *bounds[i], 0.0))
+            again[i], short[k] = path, False
+            recorded_again.append(k)
+    if again:  # the blocks recorded again, one at a time into the file the mesh jobs read
+        _atomic_savez_each(out / "costs" / "whole.npz", (_load(again[i]) for i in sorted(again)))
+    else:
+        _atomic_savez(out / "costs" / "whole.npz")
+    counts, sse = B.streamed_cut_counts(read, tau, inner, seam_points, target, B.tied_counts)
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
-                                                     "sse": B.sse_at(sse, counts) if counts else 0.0,
-                                                     "recorded_again": len(again)}))
+                                                     "sse": sse, "recorded_again": len(recorded_again)}))
+    for path in again.values():
+        path.unlink()
+    if again_dir.exists():
+        again_dir.rmdir()
 
 
 def _number(x):
@@ -695,8 +730,9 @@ def mesh_tets(cfg, plan):
 
 def job_resources(cfg, plan, kind):
     """``(mem_mb, runtime_minutes)`` to request for a job of ``kind``: "costs" and "mesh"
-    (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "step",
-    "cut", "quota", "finish" (arrays over the whole grid), "kernels"."""
+    (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "cut" (a
+    sample of the blocks' costs), "step", "quota", "finish" (arrays over the whole grid),
+    "kernels"."""
     N = plan.n_points()
     block = int(cfg["block"])
     slab_pts = float(np.prod([max(np.diff(c)) + 1 for c in plan.cuts]))
@@ -713,8 +749,12 @@ def job_resources(cfg, plan, kind):
         secs = 60 + 1e-5 * N
     elif kind == "kernels":
         mem, secs = 2 * JOB_BASE_BYTES, 600
-    elif kind == "cut":  # the blocks' costs, and a block recorded again
-        mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
+    elif kind == "cut":  # a sample of the blocks' costs, a few numbers a block, and a block recorded again
+        from ..decimation.streamcut import RUNS
+
+        mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * RUNS + 64 * len(plan.blocks()) \
+            + DECIMATION_BYTES_PER_POINT * slab_pts
+        secs = 60 + 5e-5 * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
     else:  # quota: the regions' costs, and a region recorded again
         mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))

@@ -11,8 +11,9 @@
 # same mesh.  Written and run by `trivsel blocks` in the run's folder, which holds blocks.json.
 # What one stage hands the next is temporary: Snakemake removes a file once every job that
 # reads it has run (a killed run keeps what its unfinished jobs still need).
-# Block and region jobs read only their blocks' or regions' samples; step, cut, quota and finish
-# hold arrays over the whole grid (a few bytes a point), never a decimation of it.  The rules run
+# Block and region jobs read only their blocks' or regions' samples, the cut job a sample of the
+# blocks' costs; step, quota and finish hold arrays over the whole grid (a few bytes a point),
+# never a decimation of it.  The rules run
 # in the Python environment that runs Snakemake.
 
 import sys

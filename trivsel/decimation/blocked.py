@@ -69,9 +69,11 @@ import numpy as np
 
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
+from .streamcut import streamed_cut_counts, streamed_threshold
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
-           "short_blocks", "threshold_of_whole_records",
+           "short_blocks", "threshold_of_whole_records", "cut_counts", "tied_counts", "streamed_threshold",
+           "streamed_cut_counts",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
            "region_decimate", "cost_caps", "record_caps", "derives_limit", "short_regions",
            "limit_of_whole_records", "cut_quota", "quota_limit", "free_share", "pass_limit", "record_limit",
@@ -363,6 +365,15 @@ def cut_counts(runmax, tau, inner=None, seam_points=0, target=None):
     hi = [int(np.searchsorted(r, tau, side="right")) for r in runmax]
     if target is None or not runmax:
         return hi
+    return tied_counts(hi, [int(np.searchsorted(r, tau, side="left")) for r in runmax], inner, seam_points, target)
+
+
+def tied_counts(hi, lo, inner, seam_points, target):
+    """:func:`cut_counts` of the blocks' counts at or below the threshold (``hi``) and below it
+    (``lo``): the collapses tied at it taken in block order while the projected count stays at
+    ``target`` or above."""
+    if target is None:
+        return list(hi)
     total = sum(inner)
 
     def left(kept):
@@ -373,7 +384,6 @@ def cut_counts(runmax, tau, inner=None, seam_points=0, target=None):
         kept -= 1
     while kept < total and left(kept) < target:
         kept += 1
-    lo = [int(np.searchsorted(r, tau, side="left")) for r in runmax]
     extra = total - kept - sum(lo)  # the tied collapses the target leaves room for
     counts = []
     for a, h in zip(lo, hi):
