@@ -77,7 +77,7 @@ STEP_BYTES_PER_TET = 80
 FINISH_BYTES_PER_POINT = 60
 FINISH_BYTES_PER_TET = 240
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
-#: ``RUNS`` runs of 40 bytes, with the temporaries of their sort)
+#: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
 #: Tetrahedra per vertex of a decimated grid (5.6-5.9 measured; a Kuhn split has 6 per cell)
 TETS_PER_VERTEX = 6
@@ -750,9 +750,7 @@ def job_resources(cfg, plan, kind):
     elif kind == "kernels":
         mem, secs = 2 * JOB_BASE_BYTES, 600
     elif kind == "cut":  # a sample of the blocks' costs, a few numbers a block, and a block recorded again
-        from ..decimation.streamcut import RUNS
-
-        mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * RUNS + 64 * len(plan.blocks()) \
+        mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * B.STREAM_RUNS + 64 * len(plan.blocks()) \
             + DECIMATION_BYTES_PER_POINT * slab_pts
         secs = 60 + 5e-5 * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
     else:  # quota: the regions' costs, and a region recorded again

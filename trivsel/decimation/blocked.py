@@ -69,6 +69,7 @@ import numpy as np
 
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
+from .streamcut import RUNS as STREAM_RUNS
 from .streamcut import streamed_cut_counts, streamed_threshold
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
