@@ -44,6 +44,13 @@ largest, as a process of its own under ``/usr/bin/time``: its peak memory (with 
 
     python benchmarks/bench_blocked_decimate.py --job-peaks --size 129 --block 32 --fractions 0.05
 
+``--requests FOLDER...`` reads finished runs (kept with ``--notemp``, or with ``--jobs ... --keep``)
+and prints, for each kind of job, the largest peak memory Snakemake's benchmark files recorded
+(``max_rss``, sampled: short jobs read low) beside the memory that kind of job requests
+(:func:`trivsel.blocks.decimate.job_resources`, with the code that ``PYTHONPATH`` names)::
+
+    python benchmarks/bench_blocked_decimate.py --requests RUN1 RUN2
+
 ``--phases f4 --block 64`` times pass 1 on one interior block by its phases (lazy queue, then the
 exact queue down to its share of the count, and below it the exact queue or the lazy one).
 
@@ -244,6 +251,36 @@ def job_peaks(size, block, fraction):
             shutil.rmtree(copy)
 
 
+def requests(folders):
+    """``--requests`` (see the module docstring)."""
+    import json
+
+    from trivsel.blocks import read_config
+    from trivsel.blocks.decimate import job_resources
+
+    print("| run | points | tetrahedra after the blocks | kind | largest max_rss MB (item) | request MB | "
+          "request / peak |")
+    print("|---|---|---|---|---|---|---|")
+    for folder in map(Path, folders):
+        cfg, plan = read_config(folder)
+        largest = {}
+        for tsv in (folder / "benchmarks").rglob("*.tsv"):
+            name = tsv.relative_to(folder / "benchmarks").with_suffix("")
+            kind = name.parts[0].split("_")[0]
+            mb = float(tsv.read_text().splitlines()[1].split("\t")[2])
+            if mb >= largest.get(kind, (-1.0, ""))[0]:
+                largest[kind] = (mb, "/".join(name.parts[1:]) or "-")
+        state = folder / "passes" / "0" / "state.npz"
+        tets = len(np.load(state)["T"]) if state.exists() else None
+        points = json.loads((folder / "summary.json").read_text())["points"]
+        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "finish"):
+            if kind in largest:
+                mb, item = largest[kind]
+                req = job_resources(cfg, plan, kind)[0]
+                print(f"| {folder.name} | {points:,} | {tets if tets is None else f'{tets:,}'} | {kind} | "
+                      f"{mb:.0f} ({item}) | {req} | {req / max(mb, 1.0):.1f} |", flush=True)
+
+
 def phases(source, block, fraction):
     """Pass 1 on one interior block, its phases timed: the lazy queue to twice its share of the
     count, then the exact queue to its share, half, a quarter, and to the end; and again with
@@ -364,7 +401,12 @@ def main(argv=None):
     ap.add_argument("--tol-rms", action="store_true",
                     help="blocked to the unblocked run's E_RMS at each fraction, not to its count")
     ap.add_argument("--job-peaks", action="store_true", help="each kind of job's peak memory, as a process of its own")
+    ap.add_argument("--requests", nargs="+", metavar="FOLDER",
+                    help="finished runs: each kind of job's largest recorded peak against its memory request")
     a = ap.parse_args(argv)
+    if a.requests:
+        requests(a.requests)
+        return
     if a.job_peaks:
         job_peaks(a.size, a.block, a.fractions[0])
         return
