@@ -431,24 +431,28 @@ def _state(out, st, p):
     N = st.plan.n_points()
     if p == 0:
         tau, d = _tau(out)
-        meshes, names = [], []
-        for slab in st.slabs:
-            z = _load(out / "meshes" / f"{slab}.npz")
-            for i, lo, _ in st.blocks_of(slab):
-                meshes.append((z[f"tets_{i}"], z[f"inside_{i}"], z[f"rows_{i}"], int(z[f"removed_{i}"])))
-                names.append(tuple(lo))
-        T, owner, isv = B.assemble(N, meshes, d["counts"], names)
+        names = [tuple(lo) for slab in st.slabs for _, lo, _ in st.blocks_of(slab)]
+
+        def meshes():  # one block at a time
+            for slab in st.slabs:
+                with _Members(out / "meshes" / f"{slab}.npz") as z:
+                    for i, _, _ in st.blocks_of(slab):
+                        yield z[f"tets_{i}"], z[f"inside_{i}"], z[f"rows_{i}"], int(z[f"removed_{i}"])
+
+        T, owner, isv = B.assemble(N, meshes(), d["counts"], names)
         return T, owner, isv, isv.copy()
     s = _load(out / "passes" / str(p - 1) / "state.npz")
     plan = _load(out / "passes" / str(p - 1) / "plan.npz")
     if not plan["ran"]:
         return s["T"], s["owner"], s["isv"], s["cand"]
     dims = st.region_dims(p - 1)
-    results = []
-    for slab in st.region_slabs(p - 1):
-        z = _load(out / "passes" / str(p - 1) / "out" / f"{slab}.npz")
-        for r in _slab_regions(plan, dims, slab):
-            results.append(tuple(z[f"{name}_{r}"] for name in RESULT))
+
+    def results():  # the pass's regions in order, one at a time
+        for slab in st.region_slabs(p - 1):
+            with _Members(out / "passes" / str(p - 1) / "out" / f"{slab}.npz") as z:
+                for r in _slab_regions(plan, dims, slab):
+                    yield tuple(z[f"{name}_{r}"] for name in RESULT)
+
     T, owner, isv, _ = B.merge_pass(s["T"], s["owner"], s["isv"], plan, results)
     cand = plan["left"] if st.passes[p - 1][0] == "seams" else s["cand"]
     return T, owner, isv, cand
@@ -490,13 +494,14 @@ def _step(out, st, p):
                   limit=np.float64(limit), caps=np.asarray(caps if caps is not None else [], np.int64),
                   whole_caps=np.asarray(whole_caps if whole_caps is not None else [], np.int64))
     per = int(dims[1] * dims[2])
-    for slab in st.region_slabs(p):
-        res = {}
+
+    def inputs(slab):  # the slab's regions one at a time, each written before the next is made
         for k in np.flatnonzero(plan["region"] // per == slab) if run else ():
             r = int(plan["region"][k])
-            inp = B.region_input(plan, T, owner, int(k))
-            res.update({f"{name}_{r}": a for name, a in inp.items()})
-        _atomic_savez(folder / "in" / f"{slab}.npz", **res)
+            yield {f"{name}_{r}": a for name, a in B.region_input(plan, T, owner, int(k)).items()}
+
+    for slab in st.region_slabs(p):
+        _atomic_savez_each(folder / "in" / f"{slab}.npz", inputs(slab))
 
 
 def _region_inputs(z):

@@ -652,18 +652,16 @@ def record_limit(kind, tau, limit):
 
 def merge_pass(T, owner, isv, plan, results):
     """The mesh after a pass: every region's tetrahedra replaced by its new ones
-    (``results[k]``, :func:`region_decimate`, for run ``k`` of ``plan``).  Returns ``T``,
-    ``owner``, ``isv`` and the number of points removed."""
+    (:func:`region_decimate`'s result for run ``k`` of ``plan``, the k-th of ``results()``, a
+    callable that yields them in order each time it is called: they are read twice, one at a
+    time, and never held together).  Returns ``T``, ``owner``, ``isv`` and the number of points
+    removed."""
     keep = np.ones(len(T), bool)
-    new_T, new_pts, new_rows = [], [], []
     isv = isv.copy()
     removed = base = 0
-    for k, (rem, nt, nonv, rows) in enumerate(results):
+    for k, (rem, nt, _, _) in enumerate(results()):  # what goes, and how many tetrahedra come
         removed += len(rem)
         isv[rem] = False
-        new_pts.append(nonv)
-        new_rows.append(base + rows)
-        new_T.append(nt)
         base += len(nt)
         keep[plan["order"][plan["starts"][k]:plan["ends"][k]]] = False
     kept_rows = np.cumsum(keep) - 1
@@ -676,11 +674,10 @@ def merge_pass(T, owner, isv, plan, results):
     T2 = np.empty((M, 4), T.dtype)
     T2[:nkeep] = T[keep]
     at = nkeep
-    for nt in new_T:
+    for _, nt, nonv, rows in results():  # the new tetrahedra after the kept ones, and their points
         T2[at:at + len(nt)] = nt
+        owner[nonv] = at + rows
         at += len(nt)
-    for p, r in zip(new_pts, new_rows):
-        owner[p] = nkeep + r
     return T2, owner, isv, removed
 
 
@@ -870,7 +867,8 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
         del recorded
     todo = [k for k in runs if k not in whole]
     done = dict(zip(todo, _map(_region_apply, todo, threads)))
-    T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan, (whole[k] if k in whole else done[k] for k in runs))
+    T2, owner2, isv2, removed = merge_pass(T, owner, isv, plan,
+                                           lambda: (whole[k] if k in whole else done[k] for k in runs))
     del _SHARED["region"]
     return T2, owner2, isv2, plan["left"], {"offset": offset, "regions": len(runs), "free": int(plan["free"].sum()),
                                             "removed": removed, "not_free": int(plan["left"].sum()), "sse": spent,
