@@ -52,8 +52,8 @@ from ..methods import get_method
 from . import (JOB_BASE_BYTES, SUGGESTED_BLOCKS, SUGGESTED_JOB_BYTES, Plan, _atomic_savez, _atomic_savez_each,
                _atomic_write_text, _open, check_item, check_tolerance, item_name, publish_results, read_config)
 
-__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "job_resources", "jobs_memory",
-           "check_job_memory"]
+__all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "region_bytes", "job_resources",
+           "jobs_memory", "check_job_memory"]
 
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
@@ -65,8 +65,14 @@ SNAKEFILE = Path(__file__).with_name("decimate.smk")
 #: What a value of ``values`` may be
 VALUES = ("data", "fit")
 
-#: Bytes per point of a block's or a region's decimation (as ``trivsel reduce`` estimates it)
+#: Bytes per point of a block's decimation (as ``trivsel reduce`` estimates it)
 DECIMATION_BYTES_PER_POINT = 1000
+#: Bytes per point and per tetrahedron of a region's decimation (:func:`region_bytes`): the largest
+#: rcosts jobs of f4 at 129^3 and 193^3 in blocks of 32 held about 360 a point and 390 a tetrahedron
+#: above the interpreter (244,153 points and 83,164 tetrahedra at 5 %, 148 MB; 261,766 and 1,499,160
+#: at 50 %, 734 MB: docs/notes), with room
+REGION_BYTES_PER_POINT = 500
+REGION_BYTES_PER_TET = 450
 #: Bytes per grid point and per tetrahedron of the whole mesh, of a step job (owners and flags per point;
 #: the tetrahedra, their regions and the pass plan's temporaries) and of the last job (the points' weights and
 #: residuals in chunks, the merged mesh written, with fitted values their normal equations): measured on f4 at
@@ -733,6 +739,17 @@ def mesh_tets(cfg, plan):
     return TETS_PER_VERTEX * min(N, int(B.aim(target, N, int(N - inner))) + int(N - inner))
 
 
+def region_bytes(cfg, plan, points):
+    """The memory of one region's decimation of ``points`` points (a region job's, beside its
+    interpreter): ``REGION_BYTES_PER_POINT`` a point and ``REGION_BYTES_PER_TET`` a tetrahedron, its
+    tetrahedra ``TETS_PER_VERTEX`` a vertex.  Its vertices are twice the share of the mesh after the
+    blocks (:func:`mesh_tets`: the cut's aim and every seam point, or every point without a
+    count), at most all of its points: the regions lie across the seams, where the mesh is
+    densest."""
+    share = mesh_tets(cfg, plan) / TETS_PER_VERTEX / plan.n_points()
+    return points * (REGION_BYTES_PER_POINT + REGION_BYTES_PER_TET * TETS_PER_VERTEX * min(1.0, 2.0 * share))
+
+
 def job_resources(cfg, plan, kind):
     """``(mem_mb, runtime_minutes)`` to request for a job of ``kind``: "costs" and "mesh"
     (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "cut" (a
@@ -742,10 +759,11 @@ def job_resources(cfg, plan, kind):
     block = int(cfg["block"])
     slab_pts = float(np.prod([max(np.diff(c)) + 1 for c in plan.cuts]))
     region_pts = float(min(N, (B.REGION * block + 1) ** 3))
+    region = region_bytes(cfg, plan, region_pts)
     if kind in ("costs", "mesh"):
         mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
     elif kind in ("rcosts", "apply"):
-        mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
+        mem, secs = JOB_BASE_BYTES + region, 60 + 5e-5 * N
     elif kind == "step":
         mem = JOB_BASE_BYTES + STEP_BYTES_PER_POINT * N + STEP_BYTES_PER_TET * mesh_tets(cfg, plan)
         secs = 60 + 2e-6 * N
@@ -759,7 +777,7 @@ def job_resources(cfg, plan, kind):
             + DECIMATION_BYTES_PER_POINT * slab_pts
         secs = 60 + 5e-5 * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
     else:  # quota: the regions' costs, and a region recorded again
-        mem, secs = JOB_BASE_BYTES + 16 * N + DECIMATION_BYTES_PER_POINT * region_pts, 60 + 5e-5 * N
+        mem, secs = JOB_BASE_BYTES + 16 * N + region, 60 + 5e-5 * N
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
 
 
