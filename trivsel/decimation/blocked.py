@@ -443,6 +443,10 @@ def assemble(N, meshes, runmax=None, names=None):
     return np.concatenate(tets), owner, isv
 
 
+#: Rows of the mesh that :func:`pass_plan` takes at a time for its per-tetrahedron temporaries
+PLAN_CHUNK = 1 << 20
+
+
 def pass_plan(shape, T, owner, isv, cand, offset, size):
     """The regions of one pass: the grid of edge ``size`` cut at ``offset + k size``.  A
     candidate vertex is free in its region when every tetrahedron around it has its
@@ -458,15 +462,22 @@ def pass_plan(shape, T, owner, isv, cand, offset, size):
     rid = np.full(len(isv), -1, index_type(int(np.prod(dims))))
     rid[c] = (r3[:, 0] * dims[1] + r3[:, 1]) * dims[2] + r3[:, 2]
     del c, r3
-    R = rid[T]
-    rmin = np.where(R >= 0, R, np.iinfo(rid.dtype).max).min(axis=1)
-    rmax = R.max(axis=1)
-    del R
+    # each tetrahedron's least and greatest region of its candidates (-1: none), a chunk of rows at a time
+    rmin, rmax = np.empty(len(T), rid.dtype), np.empty(len(T), rid.dtype)
+    for s in range(0, len(T), PLAN_CHUNK):
+        R = rid[T[s:s + PLAN_CHUNK]]
+        rmax[s:s + PLAN_CHUNK] = R.max(axis=1)
+        R[R < 0] = np.iinfo(rid.dtype).max
+        rmin[s:s + PLAN_CHUNK] = R.min(axis=1)
     conflict = (rmax >= 0) & (rmin != rmax)
+    del rmin
     blocked = np.zeros(len(isv), bool)
     blocked[T[conflict].ravel()] = True
+    del conflict
     free = cand & ~blocked
-    treg = np.where(free[T].any(axis=1), rmax, -1)  # the region of a tetrahedron around a free vertex
+    treg = rmax  # the region of a tetrahedron around a free vertex, else -1
+    for s in range(0, len(T), PLAN_CHUNK):
+        treg[s:s + PLAN_CHUNK][~free[T[s:s + PLAN_CHUNK]].any(axis=1)] = -1
     order = np.flatnonzero(treg >= 0)
     order = order[np.argsort(treg[order], kind="stable")]
     starts = np.flatnonzero(np.r_[True, np.diff(treg[order]) != 0]) if len(order) else np.zeros(0, np.int64)
