@@ -328,7 +328,7 @@ def _cut(out, st):
         _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(INF), "target": target, "counts": None,
                                                          "sse": 0.0, "recorded_again": 0}))
         return
-    blocks = [(slab, i) for slab in st.slabs for i, _, _ in st.blocks_of(slab)]
+    blocks = [i for slab in st.slabs for i, _, _ in st.blocks_of(slab)]
     inner, short = [], []
     for slab in st.slabs:
         z = _load(out / "costs" / f"{slab}.npz", lambda k: k.startswith(("inner_", "short_")))
@@ -357,21 +357,18 @@ def _cut(out, st):
     recorded_again = []
     while True:  # once more at most: whole records are never short, and tau only falls
         tau, decided = B.streamed_threshold(read, inner, seam_points, aim, st.budget(), share=B.SSE_SHARE)
-        ends = [r[-1:] for r, _ in read()] if any(short) else [np.zeros(0)] * len(blocks)
-        redo = B.short_blocks(ends, short, decided)
+        redo = B.short_blocks([r[-1:] for r, _ in read()], short, decided) if any(short) else []
         if not redo:
             break
         vol = _open(st.cfg) if vol is None else vol
         for k in redo:  # to their end, one at a time
-            i = blocks[k][1]
+            i = blocks[k]
             path = again_dir / f"{i}.npz"
             _atomic_savez(path, **_block_record(vol, st, i, *bounds[i], 0.0))
             again[i], short[k] = path, False
             recorded_again.append(k)
-    if again:  # the blocks recorded again, one at a time into the file the mesh jobs read
-        _atomic_savez_each(out / "costs" / "whole.npz", (_load(again[i]) for i in sorted(again)))
-    else:
-        _atomic_savez(out / "costs" / "whole.npz")
+    # the blocks recorded again (most runs: none), one at a time into the file the mesh jobs read
+    _atomic_savez_each(out / "costs" / "whole.npz", (_load(again[i]) for i in sorted(again)))
     counts, sse = B.streamed_cut_counts(read, tau, inner, seam_points, target, B.tied_counts)
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": sse, "recorded_again": len(recorded_again)}))
