@@ -203,6 +203,10 @@ def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, 
     assert "quota" not in D.Stages(tol, st.plan).job_kinds()
     monkeypatch.setattr(res, "available_bytes", lambda: 4 * 2**30)
     with pytest.raises(InputError, match=r"^a finish job .* run it on a larger machine or a cluster$"):
+        D.check_job_memory(tol)  # the region jobs are larger here, but smaller blocks bring them down
+    monkeypatch.setattr(res, "available_bytes", lambda: 6.5 * 2**30)
+    with pytest.raises(InputError, match=r"^an apply job of decimate in blocks of 64 needs about 6.\d+ GiB, more than "
+                                         r"the 6.5 GiB available: use --block 48$"):
         D.check_job_memory(tol)
     # from the command line: one line, exit 2, no run folder
     monkeypatch.setattr(res, "available_bytes", lambda: 64 * 2**20)

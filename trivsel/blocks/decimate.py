@@ -57,6 +57,8 @@ __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "
 
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
+#: Rows of a large mesh renumbered and written at a time (``_write_mesh``).
+MESH_CHUNK = 1 << 20
 INF = np.inf
 #: The names of a region's result (:func:`trivsel.decimation.blocked.region_decimate`) in the files
 RESULT = ("removed", "tets", "inside", "rows")
@@ -75,13 +77,13 @@ REGION_BYTES_PER_POINT = 500
 REGION_BYTES_PER_TET = 450
 #: Bytes per grid point and per tetrahedron of the whole mesh, of a step job (owners and flags per point;
 #: the tetrahedra, their regions and the pass plan's temporaries) and of the last job (the points' weights and
-#: residuals in chunks, the merged mesh written, with fitted values their normal equations): measured on f4 at
-#: 129^3 in blocks of 32 to 5 % and 50 % with fitted values, about 11 and 60 (step), 47 and 190 (last job)
-#: above the interpreter's 55 MB (docs/notes), with room
+#: residuals in chunks, with fitted values their normal equations, the meshes written a chunk at a time):
+#: measured on f4 at 129^3 in blocks of 32 to 5 % and 50 % with fitted values, about 11 and 60 (step), 71 and
+#: 57 (last job) above the interpreter's 55 MB (docs/notes), with room
 STEP_BYTES_PER_POINT = 40
 STEP_BYTES_PER_TET = 80
-FINISH_BYTES_PER_POINT = 60
-FINISH_BYTES_PER_TET = 240
+FINISH_BYTES_PER_POINT = 100
+FINISH_BYTES_PER_TET = 100
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
 #: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
@@ -137,9 +139,14 @@ def check_job_memory(full):
     if need[kind] <= avail:
         return
     fits = [b for b in SUGGESTED_BLOCKS if b < int(full["block"]) and max(jobs_memory(shape, full, b).values()) <= avail]
-    fix = (f"use --block {fits[0]}" if fits
-           else "the whole grid's arrays do not fit: run it on a larger machine or a cluster")
-    raise InputError(f"a {kind} job of decimate in blocks of {full['block']} needs about "
+    if fits:
+        fix = f"use --block {fits[0]}"
+    else:  # name the job that no block size brings within what is available
+        least = jobs_memory(shape, full, min(SUGGESTED_BLOCKS + (int(full["block"]),)))
+        kind = max((k for k in least if least[k] > avail), key=need.get, default=kind)
+        fix = "the whole grid's arrays do not fit: run it on a larger machine or a cluster"
+    article = "an" if kind[0] in "aeiou" else "a"
+    raise InputError(f"{article} {kind} job of decimate in blocks of {full['block']} needs about "
                      f"{need[kind] / 2**30:.3g} GiB, more than the {avail / 2**30:.3g} GiB available: {fix}")
 
 
@@ -704,23 +711,40 @@ def _finish(out, st):
     return summary
 
 
-def _write_mesh(path, vol, shape, tets, f, fit_at):
+def _write_mesh(path, vol, shape, tets, f, fit_at, chunk=MESH_CHUNK):
     """Tetrahedra over global point indices as a .vtu: their vertices sorted by the input's
     point id, with ``value``, ``fitted_value`` (``fit_at``: the vertices and their fitted
-    values) and ``original_index``."""
-    from ..io.pieces import write_piece
+    values) and ``original_index``.  The cells are renumbered and written ``chunk`` rows at a
+    time (:func:`trivsel.io.pieces.write_piece_in_chunks`): a large mesh (the merged one)
+    takes a flag and an index a grid point beside its points, never a copy of its cells."""
+    from ..io.pieces import write_piece_in_chunks
 
-    ids, corners = np.unique(tets, return_inverse=True)
+    if len(tets) <= chunk:
+        ids, corners = np.unique(tets, return_inverse=True)
+        at = None
+    else:
+        seen = np.zeros(int(np.prod(shape)), bool)
+        for s in range(0, len(tets), chunk):
+            seen[tets[s:s + chunk]] = True
+        ids = np.flatnonzero(seen)
+        del seen
     ijk = np.stack(np.unravel_index(ids, shape), axis=1)
     file_ids = vol.file_ids(ijk)
     order = np.argsort(file_ids, kind="stable")
-    rank = np.empty(len(ids), np.int64)
-    rank[order] = np.arange(len(ids))
+    rank = np.empty(len(ids), B.index_type(len(ids)))
+    rank[order] = np.arange(len(ids), dtype=rank.dtype)
+    if len(tets) <= chunk:
+        cells = lambda: [rank[corners.reshape(tets.shape)]]  # noqa: E731
+    else:
+        at = np.empty(int(np.prod(shape)), rank.dtype)  # a grid point's place among the vertices
+        at[ids] = rank
+        del rank
+        cells = lambda: (at[tets[s:s + chunk]] for s in range(0, len(tets), chunk))  # noqa: E731
     ids = ids[order]
     arrays = None if fit_at is None else {"fitted_value": fit_at[1][np.searchsorted(fit_at[0], ids)]}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_piece(path, vol.coordinates(ijk[order]), rank[corners.reshape(tets.shape)], f[ids], file_ids[order],
-                overwrite=True, arrays=arrays)
+    write_piece_in_chunks(path, vol.coordinates(ijk[order]), cells, len(tets), f[ids], file_ids[order],
+                          overwrite=True, arrays=arrays)
 
 
 def mesh_tets(cfg, plan):

@@ -2,6 +2,8 @@
 
 * :func:`write_piece`: one block's tetrahedra as a ``.vtu`` file with the point arrays
   ``value`` and ``original_index`` (int64, the point's id in the whole input);
+  :func:`write_piece_in_chunks` the same from chunks of tetrahedra, never held whole
+  (:mod:`trivsel.io.vtu` writes both);
 * :func:`write_pvtu`: a ``.pvtu`` file (VTK's parallel unstructured grid) over the pieces,
   which ParaView and pyvista open as one mesh;
 * :func:`write_vtm`: a ``.vtm`` file (VTK's multiblock dataset), each piece one block;
@@ -23,9 +25,10 @@ from pathlib import Path
 import numpy as np
 
 from ..exceptions import InputError
-from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, tetra_grid, umask_mode, write_vtu
+from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, umask_mode
+from .vtu import write_tetra_vtu
 
-__all__ = ["write_piece", "write_pvtu", "write_vtm", "merge_pieces"]
+__all__ = ["write_piece", "write_piece_in_chunks", "write_pvtu", "write_vtm", "merge_pieces"]
 
 #: (numpy kind, bytes) -> VTK XML type name, for the arrays a .pvtu declares.
 _VTK_TYPES = {("i", 1): "Int8", ("u", 1): "UInt8", ("i", 2): "Int16", ("u", 2): "UInt16", ("i", 4): "Int32",
@@ -54,33 +57,31 @@ def _atomic_write(path, write, overwrite):
     return path
 
 
-def _piece_grid(points, tets, values, original_index, arrays=None):
+def _piece_arrays(points, values, original_index, arrays=None):
+    """The points and the point arrays of a piece, checked: ``(points, {name: array})``."""
     p = np.asarray(points, float)
     if p.ndim != 2 or p.shape[1] != 3 or not np.all(np.isfinite(p)):
         raise InputError(f"points must be a finite (M, 3) array, got shape {p.shape}")
     m = p.shape[0]
-    t = np.asarray(tets)
-    if t.dtype.kind not in "iu" or t.ndim != 2 or t.shape[1] != 4:
-        raise InputError(f"tets must be an integer (T, 4) array, got {t.dtype} of shape {t.shape}")
-    if t.size and (t.min() < 0 or t.max() >= m):
-        raise InputError(f"tets refer to point {int(t.min() if t.min() < 0 else t.max())}: need 0 <= index < {m}")
     v = np.asarray(values)
     ids = np.asarray(original_index)
     if v.shape != (m,) or v.dtype.kind not in "iuf":
         raise InputError(f"values must be {m} real numbers (one per point), got {v.dtype} of shape {v.shape}")
     if ids.shape != (m,) or ids.dtype.kind not in "iu":
         raise InputError(f"original_index must be {m} integers (one per point), got {ids.dtype} of shape {ids.shape}")
+    if ids.size and ids.dtype.kind == "u" and ids.max() > np.iinfo(np.int64).max:
+        raise InputError(f"original_index {int(ids.max())} does not fit in int64")
     extra = {}
     for name, a in (arrays or {}).items():
         a = np.asarray(a)
         if a.shape != (m,) or a.dtype.kind not in "iuf":
             raise InputError(f"point array {name!r} must be {m} real numbers, got {a.dtype} of shape {a.shape}")
         extra[name] = a.astype(float)
-    return tetra_grid(p, t, {"value": v.astype(float), **extra, "original_index": ids.astype(np.int64)})
+    return p, {"value": v.astype(float), **extra, "original_index": ids.astype(np.int64)}
 
 
 def write_piece(path, points, tets, values, original_index, *, overwrite: bool = False, arrays=None) -> Path:
-    """Write one piece: a ``.vtu`` of VTK_TETRA cells.
+    """Write one piece: a ``.vtu`` of VTK_TETRA cells (:func:`trivsel.io.vtu.write_tetra_vtu`).
 
     Parameters
     ----------
@@ -99,8 +100,25 @@ def write_piece(path, points, tets, values, original_index, *, overwrite: bool =
     arrays : dict of str to (M,) float, optional
         More point arrays (``fit``, say).
     """
-    grid = _piece_grid(points, tets, values, original_index, arrays)
-    return _atomic_write(path, lambda tmp: write_vtu(grid, tmp), overwrite)
+    t = np.asarray(tets)
+    if t.dtype.kind not in "iu" or t.ndim != 2 or t.shape[1] != 4:
+        raise InputError(f"tets must be an integer (T, 4) array, got {t.dtype} of shape {t.shape}")
+    m = len(np.asarray(points))
+    if t.size and (t.min() < 0 or t.max() >= m):
+        raise InputError(f"tets refer to point {int(t.min() if t.min() < 0 else t.max())}: need 0 <= index < {m}")
+    return write_piece_in_chunks(path, points, lambda: [t], len(t), values, original_index, overwrite=overwrite,
+                                 arrays=arrays)
+
+
+def write_piece_in_chunks(path, points, tet_chunks, n_tets, values, original_index, *, overwrite: bool = False,
+                          arrays=None) -> Path:
+    """:func:`write_piece` with the tetrahedra made a chunk of rows at a time, never whole:
+    ``tet_chunks()`` yields ``(k, 4)`` integer arrays, ``n_tets`` rows in all.  The file is
+    written from the chunks as they come (:func:`trivsel.io.vtu.write_tetra_vtu`), so a
+    merged mesh of tens of millions of tetrahedra takes no more memory than its points and a
+    chunk."""
+    p, data = _piece_arrays(points, values, original_index, arrays)
+    return _atomic_write(path, lambda tmp: write_tetra_vtu(tmp, p, tet_chunks(), n_tets, data), overwrite)
 
 
 def _relative(piece, folder):
