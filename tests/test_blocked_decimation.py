@@ -555,3 +555,41 @@ def test_a_stream_keeps_a_bounded_sample_of_the_records():
     with mock.patch.object(streamcut, "_stream_sample", spy):
         assert streamed_threshold(read, inner, 5000, 300_000, share=SSE_SHARE, runs=1000) == want
     assert max(kept) <= 2000 and 2 < len(streams) <= 12
+
+
+@settings(max_examples=examples(0.5), deadline=None)
+@given(st.integers(0, 2**32 - 1), st.integers(1, 40), st.integers(0, 5), st.booleans(), st.integers(1, 7))
+def test_a_pass_merged_in_place_is_the_pass_merged_into_new_arrays(seed, n_tets, regions, grow, chunk_log):
+    """``merge_pass(in_place=True)`` (the step and last jobs: the kept rows moved up within
+    ``T`` a chunk at a time) gives the same tetrahedra, owners, vertex flags and count as the
+    merge into new arrays, with regions that give back fewer tetrahedra than they take, none,
+    or more (then ``T`` has no room and new arrays are made)."""
+    import trivsel.decimation.blocked as blocked
+
+    rng = np.random.default_rng(seed)
+    N = 60
+    T = rng.integers(0, N, (n_tets, 4)).astype(np.int32)
+    isv = rng.random(N) < 0.5
+    owner = np.where(isv, -1, rng.integers(0, n_tets, N)).astype(np.int32)
+    taken = rng.permutation(n_tets)[:rng.integers(0, n_tets + 1)]
+    cuts = np.sort(rng.integers(0, len(taken) + 1, regions))
+    starts, ends = np.r_[0, cuts], np.r_[cuts, len(taken)]
+    plan = {"order": taken, "starts": starts, "ends": ends}
+    vertices, points = rng.permutation(np.flatnonzero(isv)), rng.permutation(np.flatnonzero(~isv))
+    results = []
+    for k in range(len(starts)):
+        size = ends[k] - starts[k]
+        nt = rng.integers(0, N, (size + rng.integers(1, 4) if grow else rng.integers(0, size + 1), 4))
+        rem, vertices = vertices[:rng.integers(0, 3)], vertices[2:]
+        nonv, points = points[:rng.integers(0, 4)], points[3:]
+        rows = rng.integers(0, max(len(nt), 1), len(nonv)) if len(nt) else np.zeros(0, np.int64)
+        results.append((rem, nt.astype(np.int32), nonv if len(nt) else nonv[:0], rows))
+    monkey = blocked.PLAN_CHUNK
+    blocked.PLAN_CHUNK = 2 ** chunk_log
+    try:
+        want = blocked.merge_pass(T.copy(), owner.copy(), isv, plan, lambda: iter(results))
+        got = blocked.merge_pass(T.copy(), owner.copy(), isv, plan, lambda: iter(results), in_place=True)
+    finally:
+        blocked.PLAN_CHUNK = monkey
+    for a, b in zip(want, got):
+        assert np.array_equal(a, b) and np.asarray(a).dtype == np.asarray(b).dtype

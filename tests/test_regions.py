@@ -59,7 +59,12 @@ def _regions_of(shape):
 # --- sources
 
 @pytest.mark.parametrize("function", [1, 2, 3, 4, 5])
-def test_function_regions_are_sample_grid_bit_for_bit(function):
+@pytest.mark.parametrize("slab_points", [1 << 18, 1, 300])  # a region whole, a plane, two planes at a time
+def test_function_regions_are_sample_grid_bit_for_bit(function, slab_points, monkeypatch):
+    """A function grid's regions, evaluated an x-slab at a time, are those of the whole grid."""
+    import trivsel.io.regions as regions
+
+    monkeypatch.setattr(regions, "FUNCTION_POINTS", slab_points)
     whole = trivsel.sample_grid(function, 10)
     vol = open_volume(function=function, n=10)
     assert vol.name == str(function) and vol.meta == {"function": function, "n": 10}

@@ -463,7 +463,8 @@ def _state(out, st, p):
                 for r in _slab_regions(plan, dims, slab):
                     yield tuple(z[f"{name}_{r}"] for name in RESULT)
 
-    T, owner, isv, _ = B.merge_pass(s["T"], s["owner"], s["isv"], plan, results)
+    # the arrays this job read are its own: merged in place
+    T, owner, isv, _ = B.merge_pass(s["T"], s["owner"], s["isv"], plan, results, in_place=True)
     cand = plan["left"] if st.passes[p - 1][0] == "seams" else s["cand"]
     return T, owner, isv, cand
 
@@ -721,7 +722,6 @@ def _write_mesh(path, vol, shape, tets, f, fit_at, chunk=MESH_CHUNK):
 
     if len(tets) <= chunk:
         ids, corners = np.unique(tets, return_inverse=True)
-        at = None
     else:
         seen = np.zeros(int(np.prod(shape)), bool)
         for s in range(0, len(tets), chunk):
@@ -740,11 +740,12 @@ def _write_mesh(path, vol, shape, tets, f, fit_at, chunk=MESH_CHUNK):
         at[ids] = rank
         del rank
         cells = lambda: (at[tets[s:s + chunk]] for s in range(0, len(tets), chunk))  # noqa: E731
-    ids = ids[order]
+    ids, file_ids = ids[order], file_ids[order]
+    points = vol.coordinates(ijk[order])
+    del ijk, order
     arrays = None if fit_at is None else {"fitted_value": fit_at[1][np.searchsorted(fit_at[0], ids)]}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_piece_in_chunks(path, vol.coordinates(ijk[order]), cells, len(tets), f[ids], file_ids[order],
-                          overwrite=True, arrays=arrays)
+    write_piece_in_chunks(path, points, cells, len(tets), f[ids], file_ids, overwrite=True, arrays=arrays)
 
 
 def mesh_tets(cfg, plan):

@@ -661,12 +661,21 @@ def record_limit(kind, tau, limit):
     return limit if kind == "quota" and limit is not None else INF
 
 
-def merge_pass(T, owner, isv, plan, results):
+def merge_pass(T, owner, isv, plan, results, *, in_place=False):
     """The mesh after a pass: every region's tetrahedra replaced by its new ones
     (:func:`region_decimate`'s result for run ``k`` of ``plan``, the k-th of ``results()``, a
     callable that yields them in order each time it is called: they are read twice, one at a
     time, and never held together).  Returns ``T``, ``owner``, ``isv`` and the number of points
-    removed."""
+    removed.
+
+    With ``in_place``, the caller gives up ``T`` and ``owner``: the kept rows move up within
+    ``T``, a chunk at a time, and the new ones follow them (the result is a view of its first
+    rows, where the merged mesh fits), and ``owner`` is rewritten where its type holds the new
+    rows.  The same arrays either way, without a second copy of the mesh::
+
+        T   [ k k x k x x k k | ... ]      k kept, x a region's (taken)
+        ->  [ k k k k k | new ... ]        the kept rows in order, then each region's new ones
+    """
     keep = np.ones(len(T), bool)
     isv = isv.copy()
     removed = base = 0
@@ -675,15 +684,23 @@ def merge_pass(T, owner, isv, plan, results):
         isv[rem] = False
         base += len(nt)
         keep[plan["order"][plan["starts"][k]:plan["ends"][k]]] = False
-    kept_rows = np.cumsum(keep) - 1
-    nkeep = int(keep.sum())
+    kept_rows = np.cumsum(keep, dtype=index_type(len(T) + 1)) - 1
+    nkeep = int(kept_rows[-1]) + 1 if len(T) else 0
     M = nkeep + base
-    owner = owner.astype(index_type(M))  # a copy
+    owner = owner.astype(index_type(M), copy=not in_place)
     moved = ~isv & (owner >= 0)
     owner[moved] = kept_rows[owner[moved]]  # points of unchanged tetrahedra: their new rows
     del kept_rows, moved
-    T2 = np.empty((M, 4), T.dtype)
-    T2[:nkeep] = T[keep]
+    if in_place and M <= len(T):
+        at = 0
+        for s in range(0, len(T), PLAN_CHUNK):  # rows only move up, past what is still to be read
+            rows = np.flatnonzero(keep[s:s + PLAN_CHUNK]) + s
+            T[at:at + len(rows)] = T[rows]
+            at += len(rows)
+        T2 = T[:M]
+    else:
+        T2 = np.empty((M, 4), T.dtype)
+        np.compress(keep, T, axis=0, out=T2[:nkeep])
     at = nkeep
     for _, nt, nonv, rows in results():  # the new tetrahedra after the kept ones, and their points
         T2[at:at + len(nt)] = nt

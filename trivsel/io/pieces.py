@@ -76,8 +76,8 @@ def _piece_arrays(points, values, original_index, arrays=None):
         a = np.asarray(a)
         if a.shape != (m,) or a.dtype.kind not in "iuf":
             raise InputError(f"point array {name!r} must be {m} real numbers, got {a.dtype} of shape {a.shape}")
-        extra[name] = a.astype(float)
-    return p, {"value": v.astype(float), **extra, "original_index": ids.astype(np.int64)}
+        extra[name] = a.astype(float, copy=False)
+    return p, {"value": v.astype(float, copy=False), **extra, "original_index": ids.astype(np.int64, copy=False)}
 
 
 def write_piece(path, points, tets, values, original_index, *, overwrite: bool = False, arrays=None) -> Path:

@@ -21,7 +21,8 @@ Sources and how they are read:
 * NIfTI (``.nii``, ``.nii.gz``) through nibabel's array proxy: a read fetches only the bytes
   of the region (``.nii``) or decompresses the stream up to the region's end (``.nii.gz``;
   memory stays that of the region, the time grows with the region's depth in the file);
-* a Table-1 function (``function``, ``n``): evaluated at the region's points only;
+* a Table-1 function (``function``, ``n``): evaluated at the region's points only, an x-slab
+  at a time;
 * everything else :func:`trivsel.io.load` reads as a grid (``.vti``, legacy ``.vtk``, ``.npz``)
   and NRRD with compressed or text encoding: **loaded whole** once, when the volume is opened
   (a warning says so); ``trivsel convert`` (:func:`convert`) copies any source into a Zarr
@@ -300,6 +301,10 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     return opener(p, array, volume)
 
 
+#: Points of a function grid evaluated at a time (:func:`open_volume` with ``function``)
+FUNCTION_POINTS = 1 << 18
+
+
 def _function_volume(function, n):
     """A Table-1 function on the grid of :func:`~trivsel.data.sample_grid`, evaluated per region."""
     from ..functions import FUNCTIONS, resolve_function
@@ -313,10 +318,18 @@ def _function_volume(function, n):
         return (2.0 * ijk - n) / n  # sample_grid's expression
 
     def block(slices):
-        ii, jj, kk = np.meshgrid(*(np.arange(s.start, s.stop, dtype=np.int64) for s in slices), indexing="ij")
-        p = coords(np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1))
-        # called on the columns of an (M, 3) array as sample_grid does: the same loops, the same bits
-        return FUNCTIONS[num][2](p[:, 0], p[:, 1], p[:, 2]).astype(float).reshape(ii.shape)
+        out = np.empty(tuple(s.stop - s.start for s in slices))
+        # an x-slab of at most FUNCTION_POINTS points at a time: its temporaries (the indices, the
+        # coordinates, the function's own) for a slab, not for the whole region
+        step = max(1, FUNCTION_POINTS // max(1, out.shape[1] * out.shape[2]))
+        for a in range(0, out.shape[0], step):
+            lo = slices[0].start + a
+            ii, jj, kk = np.meshgrid(np.arange(lo, min(lo + step, slices[0].stop), dtype=np.int64),
+                                     *(np.arange(s.start, s.stop, dtype=np.int64) for s in slices[1:]), indexing="ij")
+            p = coords(np.stack([ii.ravel(), jj.ravel(), kk.ravel()], axis=1))
+            # called on the columns of an (M, 3) array as sample_grid does: the same loops, the same bits
+            out[a:a + step] = FUNCTIONS[num][2](p[:, 0], p[:, 1], p[:, 2]).astype(float).reshape(ii.shape)
+        return out
 
     return Volume(shape=(n + 1,) * 3, origin=np.full(3, -1.0), spacing=np.full(3, 2.0 / n), name=str(num),
                   block=block, dtype=np.float64, source=f"function {num}", coords=coords,
