@@ -26,14 +26,9 @@ import numpy as np
 
 from ..exceptions import InputError
 from . import TMP_PREFIX, _read_vtk_dataset, _vtk_points, umask_mode
-from .vtu import write_tetra_vtu
+from .vtu import VTK_TYPES, write_tetra_vtu
 
 __all__ = ["write_piece", "write_piece_in_chunks", "write_pvtu", "write_vtm", "merge_pieces"]
-
-#: (numpy kind, bytes) -> VTK XML type name, for the arrays a .pvtu declares.
-_VTK_TYPES = {("i", 1): "Int8", ("u", 1): "UInt8", ("i", 2): "Int16", ("u", 2): "UInt16", ("i", 4): "Int32",
-              ("u", 4): "UInt32", ("i", 8): "Int64", ("u", 8): "UInt64", ("f", 4): "Float32", ("f", 8): "Float64"}
-
 
 def _atomic_write(path, write, overwrite):
     """``write(tmp)`` into a temporary file beside ``path`` (same suffix: VTK picks its
@@ -179,7 +174,7 @@ def write_pvtu(path, piece_paths, *, overwrite: bool = False, relative_to=None) 
 
 def _vtk_type(dtype, name):
     try:
-        return _VTK_TYPES[np.dtype(dtype).kind, np.dtype(dtype).itemsize]
+        return VTK_TYPES[np.dtype(dtype).kind, np.dtype(dtype).itemsize]
     except KeyError:
         raise InputError(f"array {name!r} has type {dtype}, which a .pvtu cannot declare") from None
 

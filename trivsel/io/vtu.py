@@ -41,8 +41,9 @@ LEVEL = 5
 _OFFSET_WIDTH = 20
 #: VTK's cell type of a tetrahedron.
 VTK_TETRA = 10
-#: numpy dtype -> the XML's type name, for the arrays written here.
-_TYPES = {np.dtype("<f8"): "Float64", np.dtype("<i8"): "Int64", np.dtype("<u1"): "UInt8"}
+#: (numpy kind, bytes) -> VTK XML type name.
+VTK_TYPES = {("i", 1): "Int8", ("u", 1): "UInt8", ("i", 2): "Int16", ("u", 2): "UInt16", ("i", 4): "Int32",
+             ("u", 4): "UInt32", ("i", 8): "Int64", ("u", 8): "UInt64", ("f", 4): "Float32", ("f", 8): "Float64"}
 
 
 class _Blocks:
@@ -88,7 +89,6 @@ class _Blocks:
         self.fh.seek(self.at)
         self.fh.write(np.array([self.nblocks, BLOCK, self.nbytes % BLOCK, *self.sizes], "<u8").tobytes())
         self.fh.seek(end)
-        return end
 
 
 def _xml(n_points, n_cells, arrays, offsets):
@@ -97,14 +97,14 @@ def _xml(n_points, n_cells, arrays, offsets):
     def array(name, dtype, components, offset):
         o = f'offset="{offset}"'
         comp = f' NumberOfComponents="{components}"' if components != 1 else ""
-        return (f'<DataArray type="{_TYPES[dtype]}" Name={quoteattr(name)}{comp} format="appended" '
-                f'{o}{" " * (_OFFSET_WIDTH + 9 - len(o))}/>')
+        return (f'<DataArray type="{VTK_TYPES[dtype.kind, dtype.itemsize]}" Name={quoteattr(name)}{comp} '
+                f'format="appended" {o}{" " * (_OFFSET_WIDTH + 9 - len(o))}/>')
 
     def tags(kind):
-        return [array(name, dt, c, o) for (name, dt, c, k), o in zip(arrays, offsets) if k == kind]
+        return [array(name, dt, c, o) for (name, dt, c, k, _), o in zip(arrays, offsets) if k == kind]
 
     point, coords, cells = tags("point"), tags("points"), tags("cells")
-    scalars = ' Scalars="value"' if any(name == "value" and k == "point" for name, _, _, k in arrays) else ""
+    scalars = ' Scalars="value"' if any(name == "value" and k == "point" for name, _, _, k, _ in arrays) else ""
     ind = "\n" + " " * 8
     return ('<?xml version="1.0"?>\n'
             '<VTKFile type="UnstructuredGrid" version="1.0" byte_order="LittleEndian" header_type="UInt64" '
@@ -157,11 +157,11 @@ def write_tetra_vtu(path, points, cells, n_cells, point_data, *, chunk=1 << 20):
         if a.shape != (m,) or a.dtype.kind not in "iuf":
             raise ValueError(f"point array {name!r} must be {m} numbers, got {a.dtype} of shape {a.shape}")
         dt = np.dtype("<f8") if a.dtype.kind == "f" else np.dtype("<i8")
-        arrays.append((name, dt, 1, "point"))
+        arrays.append((name, dt, 1, "point", m))
         data.append(a)
-    arrays += [("Points", np.dtype("<f8"), 3, "points"), ("connectivity", np.dtype("<i8"), 1, "cells"),
-               ("offsets", np.dtype("<i8"), 1, "cells"), ("types", np.dtype("<u1"), 1, "cells")]
-    sizes = [m * 8 for _ in data] + [m * 24, n_cells * 32, n_cells * 8, n_cells]
+    # (name, type, components, where it goes, tuples)
+    arrays += [("Points", np.dtype("<f8"), 3, "points", m), ("connectivity", np.dtype("<i8"), 1, "cells", 4 * n_cells),
+               ("offsets", np.dtype("<i8"), 1, "cells", n_cells), ("types", np.dtype("<u1"), 1, "cells", n_cells)]
     offsets = [0] * len(arrays)
     with open(path, "wb") as fh:
         head = _xml(m, n_cells, arrays, offsets)
@@ -169,13 +169,14 @@ def write_tetra_vtu(path, points, cells, n_cells, point_data, *, chunk=1 << 20):
         start = fh.tell()
 
         def one(k, parts):
+            _, dt, components, _, tuples = arrays[k]
             offsets[k] = fh.tell() - start
-            out = _Blocks(fh, sizes[k])
+            out = _Blocks(fh, tuples * components * dt.itemsize)
             for part in parts:
                 out.add(part)
             out.close()
 
-        for k, ((_, dt, _, _), a) in enumerate(zip(arrays, data)):
+        for k, (a, (_, dt, _, _, _)) in enumerate(zip(data, arrays)):
             one(k, [a.astype(dt, copy=False)])
         one(len(data), [points])
 
