@@ -288,7 +288,7 @@ def test_a_fresh_grid_is_queued_from_its_template_as_by_every_vertex_evaluated(s
     a, b = (new_state(ijk, shape, values, lock=lock, key=key) for _ in range(2))
     kernels(a).init(a, tol)
     kernels(b).init_grid(b, tol, *shape)
-    for name in ("hkey", "hsse", "htgt", "hdeg", "hpos", "hv"):
+    for name in ("hkey", "hsse", "htgt", "qkey", "qdeg", "hpos", "hv"):
         assert np.array_equal(getattr(a, name), getattr(b, name)), name
     assert a.ctr[2] == b.ctr[2] and a.ctr[2] > 0  # the same number queued, some
     if min(shape) >= 3:  # interior vertices with a valid collapse exist, and the template found them
@@ -333,6 +333,40 @@ def test_a_collapse_from_the_places_its_evaluation_kept_is_the_collapse_located_
     assert np.array_equal(a.S.ptet, b.S.ptet)
     assert b.S.ctr[C_LAST] == -1 and b.S.ctr[C_KEPT] == 0  # nothing kept without room
     assert a.S.ctr[C_KEPT] > (0.5 if lazy else 0.02) * len(a.removed())
+
+
+def assert_heap(S):
+    """The queue's slots hold a heap of ``QUEUE_ARITY`` children a slot under the order
+    (key, degree, vertex): every entry comes after its parent's, each slot's key and degree
+    are its vertex's, and ``hpos`` is the inverse of ``hv``."""
+    from trivsel.decimation import C_HN, QUEUE_ARITY
+
+    nh = int(S.ctr[C_HN])
+    hv = S.hv[:nh].astype(np.int64)
+    assert np.array_equal(S.hpos[hv], np.arange(nh))
+    assert (S.hpos >= 0).sum() == nh
+    assert np.array_equal(S.qkey[:nh], S.hkey[hv])
+    entries = list(zip(S.qkey[:nh].tolist(), S.qdeg[:nh].tolist(), hv.tolist()))
+    for i in range(1, nh):
+        assert entries[(i - 1) // QUEUE_ARITY] < entries[i], i
+    if nh:
+        assert entries[0] == min(entries)
+
+
+@pytest.mark.parametrize("levels, key, lazy", [(0, "sse", False), (2, "sse", True), (3, "max", False), (2, "max", True)])
+def test_the_queue_is_a_heap_whose_head_is_the_least_entry(levels, key, lazy):
+    """After every run of collapses, lazy or exact, the queue is a heap: the collapse made next
+    is the least (key, degree, vertex), whatever the heap's shape.  Values with few levels make
+    keys tie, so that the degree and the vertex decide."""
+    rng = np.random.default_rng(levels + 11 * lazy)
+    shape = (7, 6, 5)
+    n = int(np.prod(shape))
+    values = rng.integers(0, levels, n).astype(float) if levels else rng.normal(size=n)
+    dec = Decimation(np.indices(shape).reshape(3, -1).T, shape, values, key=key, lazy=lazy)
+    assert_heap(dec.S)
+    for count in range(n - 7, 30, -7):
+        dec.run(count)
+        assert_heap(dec.S)
 
 
 def test_lazy_updates_leave_a_valid_mesh_and_an_exact_queue_when_switched_off():

@@ -69,6 +69,8 @@ INT32_CORNERS = 2**31
 #: Room in the corner pool, over the corners' segments (``_segments``);
 #: when a segment must move and the pool is full, it is compacted (``Decimation._compact``)
 POOL_ROOM = 1.5
+#: Children of a slot of the collapse queue's heap (``_sift_down`` in :mod:`.collapse`)
+QUEUE_ARITY = 4
 #: The most tetrahedra around one vertex that a collapse considers (a vertex with more stays)
 STAR_CAPACITY = 1 << 16
 #: The most points of a star whose places an evaluation keeps for the collapse that may follow it
@@ -115,8 +117,11 @@ class State(NamedTuple):
         res[p]        f - L at p (0 at vertices); isv[p] whether p is a vertex
         dirty[v]      v is queued with a cost from before its tets last changed (lazy)
         lock[p]       the box constraint (bits above)
-        heap          hv[0:hn] vertices by (hkey, vertex); hpos[v] their slots (-1: not
-                      queued); htgt[v] the target of v's cheapest collapse
+        heap          hv[0:hn] vertices by (key, degree, vertex), QUEUE_ARITY children a
+                      slot; qkey, qdeg the key and degree of each slot's entry; hpos[v]
+                      v's slot (-1: not queued); hkey[v], hsse[v], htgt[v] the key, the
+                      change of the squared-residual sum and the target of v's cheapest
+                      collapse (kept once v is removed)
         removed[k]    the k-th vertex removed, into[k] the vertex it moved onto
         acc[0]        the sum of squared residuals; ctr: [n_vertices, n_removed, heap size,
                       the max criterion, lazy updates, the corner pool's top, float
@@ -154,7 +159,8 @@ class State(NamedTuple):
     htgt: np.ndarray
     mark: np.ndarray
     deg: np.ndarray
-    hdeg: np.ndarray
+    qkey: np.ndarray
+    qdeg: np.ndarray
     removed: np.ndarray
     into: np.ndarray
     dirty: np.ndarray
@@ -218,7 +224,9 @@ def _aligned_empty(shape, dtype, line=64):
 def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     """The :class:`State` of a decimation of grid data before its first collapse (the corner
     segments sized, nothing linked or queued yet: the kernels' ``init`` does that)."""
-    P = np.ascontiguousarray(ijk, np.int64)
+    # int32 coordinates: half the memory a star's points take; the kernels' arithmetic on
+    # them is int64 (numba widens smaller integers), exact as before
+    P = np.ascontiguousarray(ijk, np.int32)
     N = P.shape[0]
     Tg = grid_tetrahedra(shape)
     M = Tg.shape[0]
@@ -242,7 +250,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
                  phead=np.full(M, -1, ix),
                  pnext=np.full(N, -1, ix), ptet=np.full(N, -1, ix), res=np.zeros(N),
                  isv=np.ones(N, np.bool_), lock=lk.astype(np.int8), hv=np.zeros(N, ix), hpos=np.full(N, -1, ix),
-                 hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix), hdeg=np.zeros(N, np.int32),
+                 hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix), qkey=np.full(N, INF), qdeg=np.zeros(N, np.int32),
                  deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                  removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
@@ -300,7 +308,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
     from ..triangulation import boundary_triangles
 
     ijk = lattice_coordinates(points)
-    P = np.ascontiguousarray(points, np.float64) if ijk is None else ijk
+    P = np.ascontiguousarray(points, np.float64) if ijk is None else ijk.astype(np.int32)
     f = np.ascontiguousarray(values, np.float64)
     Tm = np.asarray(tets, np.int64)
     N, M = P.shape[0], Tm.shape[0]
@@ -337,7 +345,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
                  cpool=np.full(int(cap.sum() * POOL_ROOM), -1, ix), vstart=vstart, vcap=cap.astype(np.int32),
                  phead=phead, pnext=pnext, ptet=ptet, res=res, isv=isv.copy(), lock=lk, hv=np.zeros(N, ix),
                  hpos=np.full(N, -1, ix), hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix),
-                 hdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
+                 qkey=np.full(N, INF), qdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
                  removed=np.zeros(N, np.int64), into=np.zeros(N, np.int64), dirty=np.zeros(N, np.bool_), sc=np.zeros(STAR_CAPACITY, np.int64),
                  Q=np.zeros((STAR_CAPACITY, 4), np.int64), G=np.zeros((STAR_CAPACITY, 4), np.int64),
                  kw=np.zeros(STAR_CAPACITY, np.bool_), X=np.full((STAR_CAPACITY, 4), -2, np.int64), B=np.zeros((2 * STAR_CAPACITY, 2), np.int64),
@@ -449,7 +457,7 @@ class Decimation:
         self.compactions += 1
 
     #: The fields only collapses use: the queue, the corner pool and the scratch arrays.
-    QUEUE_FIELDS = ("cpool", "vstart", "vcap", "deg", "hv", "hpos", "hkey", "hsse", "htgt", "hdeg", "mark", "dirty",
+    QUEUE_FIELDS = ("cpool", "vstart", "vcap", "deg", "hv", "hpos", "hkey", "hsse", "htgt", "qkey", "qdeg", "mark", "dirty",
                     "pbuf", "phome", "aff", "LT", "LR")
 
     def release_queue(self):

@@ -18,7 +18,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from . import C_FLOAT, C_HN, C_KEPT, C_LAST, C_LAZY, C_LM, C_LROW, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL, LOCK_MESH
+from . import C_FLOAT, C_HN, C_KEPT, C_LAST, C_LAZY, C_LM, C_LROW, C_MAXKEY, C_NREM, C_NV, C_PTOP, INF, LOCK_ALL, LOCK_MESH, \
+    QUEUE_ARITY
 from ..predicates import orient3d_robust, orient3d_value
 
 # ----------------------------------------------------------------------------- geometry
@@ -416,27 +417,46 @@ def _allowed(S, v, w, B, nb):
 
 
 @njit(cache=True, _nrt=False, inline='always')
-def _moved_star(P, flt, Q, G, sc, kw, n, w):
-    """Whether v may move onto w (v's star gathered: tets ``Q[:n]``, their planes ``G``): the
-    number of v's tets that contain w (they vanish), or -1 if another tet would not keep a
-    positive volume with w in v's slot.  Sets ``kw`` (which tets contain w) up to the first
-    tet that fails."""
+def _moved_star(P, flt, Q, G, sc, kw, n, w, r):
+    """Whether v may move onto w (v's star gathered: tets ``Q[:n]``, their planes ``G``):
+    ``(shared, r)``, ``shared`` the number of v's tets that contain w (they vanish), or -1 if
+    another tet would not keep a positive volume with w in v's slot.  Sets ``kw`` (which
+    tets contain w) up to the first tet that fails.
+
+    On a grid, star tet r is tried first (the caller passes the tet that turned its last
+    neighbour away: it often turns this one away too, and saves the scan up to its place),
+    and a tet that fails is returned as the next r.  The answer does not depend on the
+    order."""
     shared = 0
-    wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
-    for i in range(n):
-        h = _has(Q, i, w)
-        kw[i] = h
-        if h:
-            shared += 1
-            continue
-        if flt:  # float coordinates: the robust predicate on the tet as it would be
+    if flt:  # float coordinates: the robust predicate on each tet as it would be
+        for i in range(n):
+            h = _has(Q, i, w)
+            kw[i] = h
+            if h:
+                shared += 1
+                continue
             s = sc[i] & 3
             if _orient(P, True, w if s == 0 else Q[i, 0], w if s == 1 else Q[i, 1], w if s == 2 else Q[i, 2],
                        w if s == 3 else Q[i, 3]) <= 0.0:
-                return -1
-        elif G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3] <= 0:
-            return -1
-    return shared
+                return -1, r
+        return shared, r
+    # on the grid, the far face's plane at w first: zero for every tet that holds w (w is
+    # on its far face), so only a zero needs the look at the tet's vertices
+    wx, wy, wz = P[w, 0], P[w, 1], P[w, 2]
+    if 0 <= r < n:
+        o = G[r, 0] * wx + G[r, 1] * wy + G[r, 2] * wz + G[r, 3]
+        if o < 0 or (o == 0 and not _has(Q, r, w)):
+            return -1, r
+    for i in range(n):
+        o = G[i, 0] * wx + G[i, 1] * wy + G[i, 2] * wz + G[i, 3]
+        if o > 0:
+            kw[i] = False
+        elif o < 0 or not _has(Q, i, w):
+            return -1, i
+        else:
+            kw[i] = True
+            shared += 1
+    return shared, r
 
 
 @njit(cache=True, _nrt=False, inline='always')
@@ -510,16 +530,21 @@ def _best(S, v, sc, G, mark, tol_inf):
     # v's last target first: it is often still the best, and a good first bound prunes the
     # others early (the argmin, ties included, does not depend on the order)
     first = S.htgt[v]
+    free = S.lock[v] == 0  # a grid's interior point: every neighbour is allowed
     row, brow = 0, 0  # the row of S.LT, S.LR being costed, and the best candidate's
+    fails = -1  # the star tet that turned the last neighbour away (``_moved_star``)
     for i in range(-1, n):
         for j in range(1 if i < 0 else 4):
             w = first if i < 0 else Q[i, j]
             if w < 0 or mark[w] == stamp:
                 continue
             mark[w] = stamp
-            if not S.isv[w] or not _allowed(S, v, w, S.B, nb):
+            # a star tet's vertices are vertices; the last target may have been removed since
+            if i < 0 and not S.isv[w]:
                 continue
-            shared = _moved_star(P, flt, Q, G, sc, kw, n, w)
+            if not free and not _allowed(S, v, w, S.B, nb):
+                continue
+            shared, fails = _moved_star(P, flt, Q, G, sc, kw, n, w, fails)
             if shared <= 0:
                 continue
             if m < 0:
@@ -597,44 +622,63 @@ def _collapse(S, v, w, sc, n):
 # ----------------------------------------------------------------------------- the queue
 
 
-@njit(cache=True, _nrt=False)
-def _before(S, a, b):
-    ka, kb = S.hkey[a], S.hkey[b]
+@njit(cache=True, _nrt=False, inline='always')
+def _before(ka, da, a, kb, db, b):
+    """Whether the entry (key ``ka``, degree ``da``, vertex a) comes before (kb, db, b): by
+    key, then by the target's tets after the collapse, then by vertex.  A strict total order
+    (the vertices differ), so the queue's head, and every collapse made, does not depend on
+    how the heap holds its entries."""
     if ka != kb:
         return ka < kb
-    da, db = S.hdeg[a], S.hdeg[b]
     return da < db or (da == db and a < b)
 
 
 @njit(cache=True, _nrt=False)
-def _put(S, i, x):
-    """Vertex x into heap slot i."""
+def _put(S, i, k, d, x):
+    """Entry (key k, degree d, vertex x) into heap slot i."""
     S.hv[i] = x
+    S.qkey[i] = k
+    S.qdeg[i] = d
     S.hpos[x] = i
 
 
 @njit(cache=True, _nrt=False)
 def _sift_up(S, i):
-    x = S.hv[i]
-    while i > 0 and _before(S, x, S.hv[(i - 1) >> 1]):
-        _put(S, i, S.hv[(i - 1) >> 1])
-        i = (i - 1) >> 1
-    _put(S, i, x)
+    hv, qkey, qdeg = S.hv, S.qkey, S.qdeg
+    x, k, d = hv[i], qkey[i], qdeg[i]
+    while i > 0:
+        u = (i - 1) // QUEUE_ARITY
+        if not _before(k, d, x, qkey[u], qdeg[u], hv[u]):
+            break
+        _put(S, i, qkey[u], qdeg[u], hv[u])
+        i = u
+    _put(S, i, k, d, x)
 
 
 @njit(cache=True, _nrt=False)
 def _sift_down(S, i):
-    hv, nh = S.hv, S.ctr[C_HN]
-    x = hv[i]
-    while 2 * i + 1 < nh:
-        j = 2 * i + 1
-        if j + 1 < nh and _before(S, hv[j + 1], hv[j]):
-            j += 1
-        if not _before(S, hv[j], x):
+    """Move slot i's entry down to its place: a heap of ``QUEUE_ARITY`` children a slot,
+    whose keys lie side by side (``S.qkey``), so that the children of a slot are compared
+    within a cache line or two, not through the vertices' own arrays::
+
+        slot u:        children QUEUE_ARITY u + 1 ... QUEUE_ARITY u + QUEUE_ARITY
+        qkey  [ k0 | k1 k2 k3 k4 | k5 ... k8 | ... ]   hv, qdeg alike; hpos[hv[i]] = i
+    """
+    hv, qkey, qdeg, nh = S.hv, S.qkey, S.qdeg, S.ctr[C_HN]
+    x, k, d = hv[i], qkey[i], qdeg[i]
+    while True:
+        a = QUEUE_ARITY * i + 1
+        if a >= nh:
             break
-        _put(S, i, hv[j])
-        i = j
-    _put(S, i, x)
+        c = a
+        for j in range(a + 1, min(a + QUEUE_ARITY, nh)):
+            if _before(qkey[j], qdeg[j], hv[j], qkey[c], qdeg[c], hv[c]):
+                c = j
+        if not _before(qkey[c], qdeg[c], hv[c], k, d, x):
+            break
+        _put(S, i, qkey[c], qdeg[c], hv[c])
+        i = c
+    _put(S, i, k, d, x)
 
 
 @njit(cache=True, _nrt=False)
@@ -649,22 +693,19 @@ def _queue(S, v, key, w, d, delta):
             S.hpos[v] = -1
             if i < nh:
                 x = S.hv[nh]
-                _put(S, i, x)
+                _put(S, i, S.qkey[nh], S.qdeg[nh], x)
                 _sift_up(S, i)
                 _sift_down(S, S.hpos[x])
         return
     S.hkey[v] = key
     S.hsse[v] = delta
     S.htgt[v] = w
-    S.hdeg[v] = d
     if i < 0:
         i = S.ctr[C_HN]
         S.ctr[C_HN] = i + 1
-        _put(S, i, v)
-        _sift_up(S, i)
-    else:
-        _sift_up(S, i)
-        _sift_down(S, S.hpos[v])
+    _put(S, i, key, d, v)
+    _sift_up(S, i)
+    _sift_down(S, S.hpos[v])
 
 
 # ----------------------------------------------------------------------------- drivers
@@ -715,7 +756,7 @@ def _grid_template(S, v0, D, O, L, SH):
             mark[w] = stamp
             D[K] = w - v0
             SH[K] = -1
-            shared = _moved_star(P, False, Q, G, sc, kw, n, w)
+            shared, _ = _moved_star(P, False, Q, G, sc, kw, n, w, -1)
             if shared > 0:
                 t, _ = _locate_star(P, False, f, Q, G, sc, kw, S.X, n, w, v0, -1)
                 if t >= 0:
