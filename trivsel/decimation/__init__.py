@@ -78,28 +78,53 @@ STAR_CAPACITY = 1 << 16
 KEEP_POINTS = 1 << 12
 
 
-def grid_tetrahedra(shape):
+def grid_tetrahedra(shape, *, dtype=np.int64, out=None):
     """The Kuhn split of the grid ``shape``: 6 positively oriented tetrahedra per cell,
     each a monotone path from the cell's low corner to its high corner, so that
-    neighbouring cells split their shared faces alike.  Returns ``(M, 4)`` int64
-    indices of the points in C order."""
+    neighbouring cells split their shared faces alike.
+
+    Parameters
+    ----------
+    shape : tuple of 3 ints
+        Points per axis, at least 2 each; points are numbered in C order.
+    dtype : integer dtype, optional
+        The indices' type, when ``out`` is not given.
+    out : (M, 4) integer array, optional
+        Filled in place (C-contiguous, ``M = 6 * prod(shape - 1)``): the split written
+        straight into the array that keeps it, with no temporary of its size.
+
+    Returns
+    -------
+    (M, 4) array
+        Row ``6 c + q`` is tetrahedron q of cell c (cells in C order of their low corner):
+        a cell's 6 tets side by side, so a vertex's tets lie close together in memory::
+
+            a -> b -> c -> d       one step along each axis, in the order of permutation q
+            (a, b, c, d), or (b, a, c, d) for an odd permutation: positive orientation
+    """
     n = np.asarray(shape, np.int64)
-    if np.any(n < 2):
+    if n.shape != (3,) or np.any(n < 2):
         raise ValueError(f"a grid needs at least 2 points per axis, got {tuple(shape)}")
+    M = 6 * int(np.prod(n - 1))
+    if out is None:
+        out = np.empty((M, 4), dtype)
+    elif out.shape != (M, 4) or not out.flags.c_contiguous:
+        raise ValueError(f"out must be a C-contiguous ({M}, 4) array, got {out.shape}")
+    if int(np.prod(n)) - 1 > np.iinfo(out.dtype).max:
+        raise ValueError(f"{out.dtype} cannot index the {int(np.prod(n))} points of the grid {tuple(shape)}")
     step = np.array([n[1] * n[2], n[2], 1], np.int64)
-    i, j, k = np.meshgrid(*(np.arange(m - 1) for m in n), indexing="ij")
-    base = ((i * n[1] + j) * n[2] + k).ravel()
-    out = []
-    for perm in permutations(range(3)):
-        a = base
-        b = a + step[perm[0]]
-        c = b + step[perm[1]]
-        d = c + step[perm[2]]
+    # each cell's low corner, by broadcasting the axes' offsets (no meshgrid of the grid's size)
+    base = (np.arange(n[0] - 1)[:, None, None] * step[0] + np.arange(n[1] - 1)[None, :, None] * step[1]
+            + np.arange(n[2] - 1)[None, None, :]).astype(out.dtype)
+    cells = out.reshape(n[0] - 1, n[1] - 1, n[2] - 1, 6, 4)
+    for q, perm in enumerate(permutations(range(3))):
+        corner = [0, step[perm[0]], step[perm[0]] + step[perm[1]], step.sum()]
         # the path's orientation is the sign of the permutation
-        inv = sum(perm[x] > perm[y] for x in range(3) for y in range(x + 1, 3)) % 2
-        out.append(np.stack([b, a, c, d] if inv else [a, b, c, d], axis=1))
-    # a cell's 6 tets side by side: a vertex's tets lie close together in memory
-    return np.stack(out, axis=1).reshape(-1, 4)
+        if sum(perm[x] > perm[y] for x in range(3) for y in range(x + 1, 3)) % 2:
+            corner[0], corner[1] = corner[1], corner[0]
+        for s in range(4):
+            np.add(base, corner[s], out=cells[:, :, :, q, s], casting="unsafe")
+    return out
 
 
 class State(NamedTuple):
@@ -211,6 +236,15 @@ def _segments(deg):
     return cap, np.cumsum(cap) - cap
 
 
+def _pool(size, dtype):
+    """A corner pool of ``size`` entries.  Zeros from the allocator, not a fill: the operating
+    system maps a page of it only when a segment is written there, so the room above the
+    segments, which a run fills slowly and rarely all of, takes no memory until it is used.
+    Nothing reads a pool entry that was not written (a segment is read up to its count), so
+    what the room holds does not matter."""
+    return np.zeros(size, dtype)
+
+
 def _aligned_empty(shape, dtype, line=64):
     """An empty C-order array whose data starts on a cache-line boundary, so that rows of a
     size that divides ``line`` never straddle two lines."""
@@ -228,16 +262,13 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     # them is int64 (numba widens smaller integers), exact as before
     P = np.ascontiguousarray(ijk, np.int32)
     N = P.shape[0]
-    Tg = grid_tetrahedra(shape)
-    M = Tg.shape[0]
+    M = 6 * int(np.prod(np.asarray(shape, np.int64) - 1))
     # indices as int32 while they fit (and counts and lock bits smaller still): the queue
     # visits the volume in cost order, so a collapse reads these arrays at random, and
     # the smaller they are the more of them stays in cache
     ix = np.int32 if 4 * M < INT32_CORNERS else np.int64
-    T = _aligned_empty((M, 4), ix)
-    T[...] = Tg
-    deg = np.bincount(Tg.ravel(), minlength=N)
-    del Tg
+    T = grid_tetrahedra(shape, out=_aligned_empty((M, 4), ix))
+    deg = np.bincount(T.ravel(), minlength=N)
     cap, vstart = _segments(deg)
     hi = np.asarray(shape, np.int64) - 1
     on = (P == 0) | (P == hi)
@@ -246,7 +277,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     if lock == "all":
         lk[on.any(axis=1)] |= LOCK_ALL
     return State(P=P, f=np.ascontiguousarray(values, np.float64), T=T, alive=np.ones(M, np.bool_),
-                 cpool=np.full(int(cap.sum() * POOL_ROOM), -1, ix), vstart=vstart, vcap=cap.astype(np.int32),
+                 cpool=_pool(int(cap.sum() * POOL_ROOM), ix), vstart=vstart, vcap=cap.astype(np.int32),
                  phead=np.full(M, -1, ix),
                  pnext=np.full(N, -1, ix), ptet=np.full(N, -1, ix), res=np.zeros(N),
                  isv=np.ones(N, np.bool_), lock=lk.astype(np.int8), hv=np.zeros(N, ix), hpos=np.full(N, -1, ix),
@@ -342,7 +373,7 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
             lam /= lam.sum(axis=1, keepdims=True)
             res[inside] = f[inside] - np.einsum("ij,ij->i", lam, f[Tm[ptet[inside]]])
     return State(P=P, f=f, T=T, alive=np.ones(M, np.bool_),
-                 cpool=np.full(int(cap.sum() * POOL_ROOM), -1, ix), vstart=vstart, vcap=cap.astype(np.int32),
+                 cpool=_pool(int(cap.sum() * POOL_ROOM), ix), vstart=vstart, vcap=cap.astype(np.int32),
                  phead=phead, pnext=pnext, ptet=ptet, res=res, isv=isv.copy(), lock=lk, hv=np.zeros(N, ix),
                  hpos=np.full(N, -1, ix), hkey=np.full(N, INF), hsse=np.full(N, INF), htgt=np.full(N, -1, ix),
                  qkey=np.full(N, INF), qdeg=np.zeros(N, np.int32), deg=np.zeros(N, np.int32), mark=np.zeros(N, np.int64),
@@ -446,7 +477,7 @@ class Decimation:
         d = S.deg[v].astype(np.int64)
         cap, start = _segments(d)
         room = max(int(cap.sum() * (max(POOL_ROOM, 2.0) - 1.0)), 8 * int(d.max()) + 16)
-        pool = np.full(int(cap.sum()) + room, -1, S.cpool.dtype)
+        pool = _pool(int(cap.sum()) + room, S.cpool.dtype)
         k = np.arange(d.sum()) - np.repeat(np.cumsum(d) - d, d)
         pool[np.repeat(start, d) + k] = S.cpool[np.repeat(S.vstart[v], d) + k]
         S.vstart[v] = start
