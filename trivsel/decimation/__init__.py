@@ -78,6 +78,11 @@ STAR_CAPACITY = 1 << 16
 KEEP_POINTS = 1 << 12
 
 
+def _split_size(shape):
+    """The number of tetrahedra of the Kuhn split of the grid ``shape``: 6 a cell."""
+    return 6 * int(np.prod(np.asarray(shape, np.int64) - 1))
+
+
 def grid_tetrahedra(shape, *, dtype=np.int64, out=None):
     """The Kuhn split of the grid ``shape``: 6 positively oriented tetrahedra per cell,
     each a monotone path from the cell's low corner to its high corner, so that
@@ -105,7 +110,7 @@ def grid_tetrahedra(shape, *, dtype=np.int64, out=None):
     n = np.asarray(shape, np.int64)
     if n.shape != (3,) or np.any(n < 2):
         raise ValueError(f"a grid needs at least 2 points per axis, got {tuple(shape)}")
-    M = 6 * int(np.prod(n - 1))
+    M = _split_size(n)
     if out is None:
         out = np.empty((M, 4), dtype)
     elif out.shape != (M, 4) or not out.flags.c_contiguous:
@@ -262,7 +267,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     # them is int64 (numba widens smaller integers), exact as before
     P = np.ascontiguousarray(ijk, np.int32)
     N = P.shape[0]
-    M = 6 * int(np.prod(np.asarray(shape, np.int64) - 1))
+    M = _split_size(shape)
     # indices as int32 while they fit (and counts and lock bits smaller still): the queue
     # visits the volume in cost order, so a collapse reads these arrays at random, and
     # the smaller they are the more of them stays in cache

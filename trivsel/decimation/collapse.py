@@ -700,14 +700,13 @@ def _queue(S, v, key, w, d, delta):
     S.hkey[v] = key
     S.hsse[v] = delta
     S.htgt[v] = w
-    if i < 0:  # a new entry, at the end: it can only move up
+    new = i < 0
+    if new:  # a new entry, at the end: it can only move up
         i = S.ctr[C_HN]
         S.ctr[C_HN] = i + 1
-        _put(S, i, key, d, v)
-        _sift_up(S, i)
-    else:
-        _put(S, i, key, d, v)
-        _sift_up(S, i)
+    _put(S, i, key, d, v)
+    _sift_up(S, i)
+    if not new:
         _sift_down(S, S.hpos[v])
 
 
