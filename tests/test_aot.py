@@ -15,6 +15,7 @@ import trivsel
 from trivsel import aot
 from trivsel import decimation as dm
 from trivsel.data import sample_grid, scattered
+from trivsel.triangulation import start_tetrahedra
 
 
 def _run(data, key, lock, tol_inf=None):
@@ -64,6 +65,35 @@ def test_a_state_of_another_layout_gets_its_own_module(monkeypatch):
     assert p32 != p64
     odd = s32._replace(cpool=s32.cpool[::2])  # not contiguous: another type for numba
     assert aot.layout(odd) != aot.layout(s32)
+
+
+def _read_only(a):
+    a = np.array(a)
+    a.flags.writeable = False
+    return a
+
+
+def test_read_only_or_strided_inputs_give_the_layout_of_writeable_ones():
+    """Values read from a CSV file come as a read-only view, and numba types a read-only
+    array apart: a state made from them would need a compile of its own.  Grid and mesh
+    states take such inputs (and strided or other-typed ones) as a copy of the one layout,
+    and leave the caller's arrays as they were."""
+    data = sample_grid(4, 5)
+    base = dm.new_state(data.ijk, data.shape, data.values)
+    values = _read_only(data.values)
+    for ijk, vals in [(_read_only(data.ijk), values), (np.asfortranarray(data.ijk), data.values[::-1][::-1]),
+                      (data.ijk.astype(np.int16), data.values.astype(np.float32))]:
+        s = dm.new_state(ijk, data.shape, vals)
+        assert aot.layout(s) == aot.layout(base)
+        assert s.f.flags.writeable and s.P.flags.writeable
+    assert not values.flags.writeable and np.array_equal(values, data.values)
+
+    sc = _scattered_data()
+    tets = start_tetrahedra(sc.points)
+    mesh = dm.new_mesh_state(sc.points, tets, sc.values)
+    ro = dm.new_mesh_state(_read_only(sc.points), tets, _read_only(sc.values))
+    assert aot.layout(ro) == aot.layout(mesh)
+    assert np.array_equal(ro.P, mesh.P) and np.array_equal(ro.f, mesh.f)
 
 
 def test_a_failed_build_falls_back_to_numba_once_and_is_tried_again_by_compile(monkeypatch, tmp_path, caplog):
