@@ -18,7 +18,7 @@ README = Path(__file__).resolve().parents[1] / "README.md"
 FENCE = re.compile(r"^```(\w*)\n(.*?)^```", re.S | re.M)
 SET_UP_COMMANDS = (
     'python3 -m venv .venv && . .venv/bin/activate && pip install -e ".[workflow]" && snakemake -c all',
-    'python3 -m venv .venv && . .venv/bin/activate && pip install -e ".[test]" && python -m pytest',
+    'python3 -m venv .venv && . .venv/bin/activate && pip install -e ".[test]" && python -m pytest -n auto --maxprocesses 4',
 )
 
 
