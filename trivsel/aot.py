@@ -186,8 +186,10 @@ def _exports(module, state, variant):
     return mod.aot_exports(st) if variant is None else mod.aot_exports(st, variant)
 
 
-#: How long the notice before the one-time compile of a method's kernels says it takes.
-COMPILE_SECONDS = "30-60 s"
+#: How long the notice before the one-time compile of a method's kernels says it takes, by what
+#: the notice calls them (the others: ``COMPILE_TIME``); measured in docs/notes
+COMPILE_TIMES = {"decimation": "1-2 min"}
+COMPILE_TIME = "30-60 s"
 
 
 def compile_notice(what):
@@ -196,7 +198,7 @@ def compile_notice(what):
     ``what`` are being compiled, and for about how long."""
     compiled.append(what)
     log.warning("compiling the %s kernels once for this machine (about %s; later runs load them)", what,
-                COMPILE_SECONDS)
+                COMPILE_TIMES.get(what, COMPILE_TIME))
 
 
 #: What :func:`compile_notice` announced in this process, in order.
