@@ -73,7 +73,7 @@ def _read_only(a):
     return a
 
 
-def test_read_only_or_strided_inputs_give_the_layout_of_writeable_ones():
+def test_read_only_or_strided_inputs_give_the_layout_of_writeable_ones(tmp_path):
     """Values read from a CSV file come as a read-only view, and numba types a read-only
     array apart: a state made from them would need a compile of its own.  Grid and mesh
     states take such inputs (and strided or other-typed ones) as a copy of the one layout,
@@ -81,11 +81,16 @@ def test_read_only_or_strided_inputs_give_the_layout_of_writeable_ones():
     data = sample_grid(4, 5)
     base = dm.new_state(data.ijk, data.shape, data.values)
     values = _read_only(data.values)
-    for ijk, vals in [(_read_only(data.ijk), values), (np.asfortranarray(data.ijk), np.stack([data.values, data.values], axis=1)[:, 0]),
-                      (data.ijk.astype(np.int16), data.values.astype(np.float32))]:
+    mapped = np.memmap(tmp_path / "values.f8", np.float64, "w+", shape=data.values.shape)
+    mapped[:] = data.values
+    strided = np.stack([data.values, data.values], axis=1)[:, 0]
+    for ijk, vals in [(_read_only(data.ijk), values), (np.asfortranarray(data.ijk), strided),
+                      (data.ijk.astype(np.int16), data.values.astype(np.float32)), (data.ijk, mapped)]:
         s = dm.new_state(ijk, data.shape, vals)
         assert aot.layout(s) == aot.layout(base)
+        assert type(s.f) is np.ndarray and type(s.P) is np.ndarray
         assert s.f.flags.writeable and s.P.flags.writeable
+        assert np.array_equal(s.f, np.asarray(vals, np.float64)) and np.array_equal(s.P, base.P)
     assert not values.flags.writeable and np.array_equal(values, data.values)
 
     sc = _scattered_data()
