@@ -260,15 +260,21 @@ def _aligned_empty(shape, dtype, line=64):
     return buf[off:off + nbytes].view(dtype).reshape(shape)
 
 
+def _plain(a, dtype):
+    """``a`` as a C-contiguous, writeable base array of ``dtype``: the caller's own array when it
+    is one, else a copy (a memmap or another subclass is taken as its base array).  Every state
+    of a layout then has one numba type, and so one compiled module: a read-only array (values
+    read from a CSV file, say) is a numba type of its own, which would need a compile of its own.
+    The kernels never write coordinates or values."""
+    return np.require(a, dtype, ["C", "W", "E"])
+
+
 def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     """The :class:`State` of a decimation of grid data before its first collapse (the corner
     segments sized, nothing linked or queued yet: the kernels' ``init`` does that)."""
     # int32 coordinates: half the memory a star's points take; the kernels' arithmetic on
     # them is int64 (numba widens smaller integers), exact as before
-    # C-contiguous, writeable plain arrays (the caller's own only when they are), so that
-    # every state of a layout has the same numba type: a read-only array, such as values read
-    # from a CSV file, is a type of its own, which would need a compile of its own
-    P = np.require(ijk, np.int32, ["C", "W", "E"])
+    P = _plain(ijk, np.int32)
     N = P.shape[0]
     M = _split_size(shape)
     # indices as int32 while they fit (and counts and lock bits smaller still): the queue
@@ -284,7 +290,7 @@ def new_state(ijk, shape, values, *, lock="box", key="sse", lazy=False):
     lk[on.all(axis=1)] |= LOCK_ALL
     if lock == "all":
         lk[on.any(axis=1)] |= LOCK_ALL
-    return State(P=P, f=np.require(values, np.float64, ["C", "W", "E"]), T=T, alive=np.ones(M, np.bool_),
+    return State(P=P, f=_plain(values, np.float64), T=T, alive=np.ones(M, np.bool_),
                  cpool=_pool(int(cap.sum() * POOL_ROOM), ix), vstart=vstart, vcap=cap.astype(np.int32),
                  phead=np.full(M, -1, ix),
                  pnext=np.full(N, -1, ix), ptet=np.full(N, -1, ix), res=np.zeros(N),
@@ -347,9 +353,8 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
     from ..triangulation import boundary_triangles
 
     ijk = lattice_coordinates(points)
-    # C-contiguous and writeable: one numba type for every state (``new_state``)
-    P = np.require(points, np.float64, ["C", "W", "E"]) if ijk is None else ijk.astype(np.int32)
-    f = np.require(values, np.float64, ["C", "W", "E"])
+    P = _plain(points, np.float64) if ijk is None else ijk.astype(np.int32)
+    f = _plain(values, np.float64)
     Tm = np.asarray(tets, np.int64)
     N, M = P.shape[0], Tm.shape[0]
     ix = np.int32 if 4 * M < INT32_CORNERS and N < INT32_CORNERS else np.int64
