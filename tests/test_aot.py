@@ -176,6 +176,70 @@ def test_a_build_keeps_only_the_newest_modules_of_its_library(monkeypatch, tmp_p
     assert left == {path.name} | {p.name for p in old[-(aot.KEEP - 1):]} | {p.name for p in others}
 
 
+@pytest.mark.skipif(os.name != "posix", reason="the build lock is flock(2)")
+def test_a_module_another_process_is_building_is_waited_for_not_built_again(monkeypatch, tmp_path, caplog):
+    """While another process holds the module's build lock (a workflow's jobs that start
+    together), a process says that it waits, builds nothing, and loads that process's module."""
+    import fcntl
+    import threading
+    import time
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    data = sample_grid(4, 6)
+    S = dm.new_state(data.ijk, data.shape, data.values)
+    name, path, _ = aot._paths(dm.KERNELS, dm.KERNEL_SOURCES, S)
+    builds = []
+    monkeypatch.setattr(aot, "build", lambda module, state, p, variant=None: builds.append(p))
+    monkeypatch.setattr(aot, "_import", lambda name, p: p.read_bytes())
+    path.parent.mkdir(parents=True)
+    lock = path.with_name(name + ".lock")
+    fd = os.open(lock, os.O_RDWR | os.O_CREAT)  # its own open file: flock(2) sets it against the thread's
+    fcntl.flock(fd, fcntl.LOCK_EX)  # the other process, building
+    got = []
+    waiter = threading.Thread(target=lambda: got.append(aot.kernels(dm.KERNELS, dm.KERNEL_SOURCES, S)))
+    with caplog.at_level(logging.WARNING, logger="trivsel"):
+        waiter.start()
+        for _ in range(500):
+            if "waiting" in caplog.text:
+                break
+            time.sleep(0.01)
+        assert "waiting for another process that is compiling the decimation kernels" in caplog.text
+        assert waiter.is_alive() and not got
+        path.write_bytes(b"the other process's module")
+        os.close(fd)  # its build is over
+        waiter.join(30)
+    assert got == [b"the other process's module"] and builds == [] and aot.waited[-1] == "decimation"
+    assert "compiling the decimation kernels once" not in caplog.text
+    assert not lock.exists()  # a module built leaves no lock behind
+
+
+def test_a_build_takes_the_lock_and_leaves_no_lock_file(monkeypatch, tmp_path):
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(tmp_path))
+    data = sample_grid(4, 6)
+    S = dm.new_state(data.ijk, data.shape, data.values)
+    name, path, _ = aot._paths(dm.KERNELS, dm.KERNEL_SOURCES, S)
+    held = []
+
+    def build(module, state, p, variant=None):  # the lock is held while it builds
+        if os.name == "posix":
+            import fcntl
+
+            fd = os.open(p.with_name(name + ".lock"), os.O_RDWR)
+            try:
+                with pytest.raises(BlockingIOError):
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                held.append(True)
+            finally:
+                os.close(fd)
+        p.write_bytes(b"built")
+
+    monkeypatch.setattr(aot, "build", build)
+    monkeypatch.setattr(aot, "_import", lambda name, p: p.read_bytes())
+    assert aot.kernels(dm.KERNELS, dm.KERNEL_SOURCES, S) == b"built"
+    assert held == ([True] if os.name == "posix" else [])
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]
+
+
 @pytest.mark.parametrize("env", [{"TRIVSEL_AOT": "0"}, {"NUMBA_DISABLE_JIT": "1"}, {"TRIVSEL_AOT": "off"}])
 def test_switched_off(monkeypatch, env):
     for k, v in env.items():

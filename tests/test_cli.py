@@ -1,6 +1,7 @@
 """The CLI: outputs, user file formats, and one-line errors with no output for bad input."""
 
 import json
+import os
 import re
 import subprocess
 import sys
@@ -308,12 +309,56 @@ def test_compile_says_what_it_did(capsys):
     another worker, may have built them first); the second loads them and says so."""
     assert main(["compile", "--method", "decimate"]) == 0
     out = capsys.readouterr().out
-    assert re.match(r"(compiled the decimate kernels in|the decimate kernels were compiled already: loaded in) "
+    assert re.match(r"(compiled the decimate kernels in|the decimate kernels were compiled already: loaded in|"
+                    r"the decimate kernels were compiled by another process: waited for them and loaded them in) "
                     r"[\d.]+ s\n$", out), out
     assert main(["compile", "--method", "decimate"]) == 0
     out = capsys.readouterr().out
     assert out.startswith("the decimate kernels were compiled already: loaded in "), out
     assert "0 kernel" not in out
+
+
+@pytest.mark.skipif(os.name != "posix", reason="the build lock is flock(2)")
+def test_compile_waits_for_another_process_that_compiles_the_same_kernels(tmp_path, monkeypatch, capsys):
+    """`trivsel compile` started while another process builds the same module (its lock held)
+    says that it waits, then loads that process's module and says so, with no compile of its own."""
+    import fcntl
+    import shutil
+    import threading
+    import time
+
+    from trivsel import aot
+    from trivsel import decimation as dm
+
+    assert main(["compile", "--method", "decimate"]) == 0  # a built module, to stand for the other's
+    capsys.readouterr()
+    g = np.indices((3, 3, 3)).reshape(3, -1).T
+    S = dm.new_state(g, (3, 3, 3), np.arange(27.0) % 5, lazy=True)  # compile_kernels's layout
+    name, built, _ = aot._paths(dm.KERNELS, dm.KERNEL_SOURCES, S)
+    monkeypatch.setattr(aot, "cache_dir", lambda: tmp_path / "aot")
+    monkeypatch.setattr(aot, "_loaded", {})
+    _, path, _ = aot._paths(dm.KERNELS, dm.KERNEL_SOURCES, S)
+    path.parent.mkdir()
+    fd = os.open(path.with_name(name + ".lock"), os.O_RDWR | os.O_CREAT)
+    fcntl.flock(fd, fcntl.LOCK_EX)  # the other process, building
+    code = []
+    waiter = threading.Thread(target=lambda: code.append(main(["compile", "--method", "decimate"])))
+    waiter.start()
+    err = ""
+    for _ in range(1000):
+        err += capsys.readouterr().err
+        if "waiting" in err:
+            break
+        time.sleep(0.01)
+    assert err == "trivsel: waiting for another process that is compiling the decimation kernels\n", err
+    shutil.copyfile(built, path)  # its module, then its lock released
+    os.close(fd)
+    waiter.join(60)
+    out = capsys.readouterr()
+    assert code == [0] and out.out.startswith("the decimate kernels were compiled by another process: waited "
+                                              "for them and loaded them in "), out
+    assert "compiling" not in out.err
+    assert sorted(p.name for p in path.parent.iterdir()) == [path.name]
 
 
 def test_the_one_time_compile_is_announced_when_stderr_is_not_a_terminal(tmp_path, monkeypatch, capsys):

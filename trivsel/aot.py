@@ -19,7 +19,8 @@ a build.  Used by ``decimate`` (:mod:`trivsel.decimation`) and by the insertion 
 1. the extension module built before for this layout, these sources, this Python, numba
    and numpy, and this machine's architecture;
 2. else it builds that module (numba's ``pycc`` and a C compiler: about as long as numba's
-   own first compile, once per machine) and loads it;
+   own first compile, once per machine) and loads it; processes that need it at the same
+   time build it once (the others wait for it, :func:`_one_builder`);
 3. else numba's just-in-time kernels themselves: when ``TRIVSEL_AOT=0`` or
    ``NUMBA_DISABLE_JIT=1`` is set, or the build failed (no C compiler, say; the failure
    is logged once and remembered, and ``trivsel compile`` tries again).
@@ -41,6 +42,7 @@ layout or a Python still in use rebuilds its own if it was among them).
 
 from __future__ import annotations
 
+import contextlib
 import functools
 import hashlib
 import importlib
@@ -203,6 +205,8 @@ def compile_notice(what):
 
 #: What :func:`compile_notice` announced in this process, in order.
 compiled: list = []
+#: The kernels this process waited for while another process compiled them (:func:`_one_builder`).
+waited: list = []
 
 
 def _label(module, variant):
@@ -275,6 +279,60 @@ def build(module, state, path, variant=None):
         os.replace(os.path.join(tmp, path.name), path)
 
 
+def _build_or_remember(module, state, path, failed, variant):
+    """Build the module (after the compile notice); on failure, log it once and record it in
+    ``failed``, so that later processes go to numba's kernels without trying again."""
+    compile_notice(_label(module, variant))
+    try:
+        build(module, state, path, variant)
+        _prune(path)
+    except Exception as exc:  # noqa: BLE001 - any failure falls back to numba's JIT
+        text = " ".join(str(exc).split())[:500] or type(exc).__name__
+        log.warning("could not compile %s ahead of time (%s): using numba's just-in-time kernels", module, text)
+        try:
+            failed.parent.mkdir(parents=True, exist_ok=True)
+            failed.write_text(text + "\n")
+        except OSError:
+            pass
+
+
+@contextlib.contextmanager
+def _one_builder(path, what):
+    """Hold an exclusive lock on ``path``'s lock file while this process builds it, so that
+    processes that start together (a workflow's jobs, a shell loop over files) build a module
+    once: the others say so, wait, and load it.  ``flock`` is released when the process ends,
+    however it ends.  The lock file is deleted once the module is built (a process that comes
+    later finds the module and takes no lock); where there is no ``fcntl`` or the cache
+    directory cannot be written, nothing is locked."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX
+        yield
+        return
+    lock = path.with_name(path.name.split(".", 1)[0] + ".lock")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+    except OSError:
+        yield
+        return
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            waited.append(what)
+            log.warning("waiting for another process that is compiling the %s kernels", what)
+            fcntl.flock(fd, fcntl.LOCK_EX)
+        yield
+        if path.exists():
+            try:
+                lock.unlink()
+            except OSError:
+                pass
+    finally:
+        os.close(fd)
+
+
 def kernels(module, sources, state, *, variant=None, rebuild=False):
     """The kernels of ``module`` (its :func:`aot_exports`) for states of the layout of ``state``,
     as attributes: from the extension module built ahead of time, built now if need be, or
@@ -303,18 +361,9 @@ def kernels(module, sources, state, *, variant=None, rebuild=False):
     if rebuild and failed.exists():
         failed.unlink()
     if not path.exists() and not failed.exists():
-        compile_notice(_label(module, variant))
-        try:
-            build(module, state, path, variant)
-            _prune(path)
-        except Exception as exc:  # noqa: BLE001 - any failure falls back to numba's JIT
-            text = " ".join(str(exc).split())[:500] or type(exc).__name__
-            log.warning("could not compile %s ahead of time (%s): using numba's just-in-time kernels", module, text)
-            try:
-                failed.parent.mkdir(parents=True, exist_ok=True)
-                failed.write_text(text + "\n")
-            except OSError:
-                pass
+        with _one_builder(path, _label(module, variant)):
+            if not path.exists() and not failed.exists():  # else another process built it while this one waited
+                _build_or_remember(module, state, path, failed, variant)
     if path.exists():
         try:
             _loaded[path] = _import(name, path)

@@ -457,7 +457,7 @@ def _cmd_compile(a):
 
     _show_messages(False)  # the compile notice and the build's warnings as ``trivsel: ...``
     t0 = time.perf_counter()
-    before = len(aot.compiled)
+    before, waits = len(aot.compiled), len(aot.waited)
     get_method(a.method).compile_kernels(a.part)
     what = f"the {a.method} kernels" + ("" if a.part is None else f" (part {a.part})")
     took = time.perf_counter() - t0
@@ -465,6 +465,8 @@ def _cmd_compile(a):
         print(f"nothing to compile: NUMBA_DISABLE_JIT is set, so {what} run as Python")
     elif len(aot.compiled) > before:
         print(f"compiled {what} in {took:.1f} s")
+    elif len(aot.waited) > waits:
+        print(f"{what} were compiled by another process: waited for them and loaded them in {took:.1f} s")
     else:
         print(f"{what} were compiled already: loaded in {took:.1f} s")
     return 0
