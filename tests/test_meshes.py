@@ -300,6 +300,56 @@ def test_face_multiplicity_counts_each_triangle_by_its_key_and_by_rows():
         assert face_multiplicity(rows).tolist() == [seen[tuple(r)] for r in rows.tolist()]
 
 
+def test_the_face_table_groups_each_triangle_as_a_sort_of_the_face_rows_would():
+    """``face_table`` without the (4 M, 3) array of faces: the order of a stable lexicographic
+    sort of the sorted face rows, each face's count of its triangle and its winding's parity,
+    on the int64-key path and on the column path (ids too large for one key), in chunks of
+    any size; ``boundary_triangles`` from it are the faces seen once, in face order."""
+    from scipy.spatial import Delaunay
+
+    from trivsel.triangulation import FACES, face_table, tet_faces
+
+    rng = np.random.default_rng(5)
+    for n in (5, 60, 400):
+        t = Delaunay(rng.random((n, 3))).simplices.astype(np.int64)
+        t = np.concatenate([t, t[: len(t) // 3][:, [1, 0, 2, 3]]])  # triangles in three and four tets, folded copies
+        faces = np.concatenate([t[:, f] for f in FACES])
+        rows = np.sort(faces, axis=1)
+        order = np.lexsort(rows.T[::-1])
+        odd = np.array([sum(a > b for i, a in enumerate(f) for b in f[i + 1:]) % 2 == 1 for f in faces.tolist()])
+        count = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
+        count = count[2][count[1].ravel()]
+        for shift, chunk in ((0, 1 << 20), (0, 7), (2**40, 5)):  # (2^40)^3 does not fit one key
+            ft = face_table(t + shift, chunk=chunk)
+            assert np.array_equal(ft["order"], order) and np.array_equal(ft["count"], count)
+            assert np.array_equal(ft["odd"], odd)
+            sr = rows[order]
+            assert np.array_equal(ft["start"], np.flatnonzero(np.r_[True, (sr[1:] != sr[:-1]).any(axis=1)]))
+            assert np.array_equal(tet_faces(t + shift, np.arange(len(faces))), faces + shift)
+        assert np.array_equal(boundary_triangles(t), faces[count == 1])
+
+
+def test_a_mesh_files_memory_estimate_counts_its_tetrahedra(monkeypatch):
+    """decimate's memory check of a tetrahedral mesh weighs its tetrahedra, not its points
+    alone: refused where the points' figure for a grid would have passed."""
+    import trivsel.resources as res
+    from scipy.spatial import Delaunay
+
+    from trivsel.methods import decimate as dmeth
+
+    rng = np.random.default_rng(0)
+    p = rng.random((300, 3))
+    t = Delaunay(p).simplices.astype(np.int64)
+    data = scattered(p, p[:, 0])
+    data.tets = t
+    assert dmeth.MESH_BYTES_PER_TET * len(t) > dmeth.BYTES_PER_POINT * len(p)
+    monkeypatch.setattr(res, "available_bytes", lambda: dmeth.BYTES_PER_POINT * len(p) + 1)
+    with pytest.raises(InputError, match=rf"^decimating a mesh of 300 points and {len(t)} tetrahedra needs about"):
+        trivsel.reduce(data, fractions=[0.5], method="decimate")
+    monkeypatch.setattr(res, "available_bytes", lambda: dmeth.MESH_BYTES_PER_TET * len(t) + 1)
+    assert trivsel.reduce(data, fractions=[0.5], method="decimate").snapshots[-1].n_selected == 150
+
+
 def test_exact_signs_agree_with_the_robust_predicate_near_flat_tetrahedra():
     """Signs from the fast flat-array volumes with the exact fallback: nearly flat
     tetrahedra (a fourth point a few ulps off the plane of three) and exactly flat ones get

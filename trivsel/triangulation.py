@@ -376,6 +376,78 @@ def scattered_start(points, hull_vertices):
     return tets, np.unique(tets)
 
 
+#: The face opposite local vertex i of a tetrahedron, wound so that vertex i lies on its
+#: negative side (outward for a positively oriented tetrahedron)::
+#:
+#:            3
+#:           /|\        face 0: 1 2 3    face 2: 0 1 3
+#:          / | \       face 1: 0 3 2    face 3: 0 2 1
+#:         /  2  \
+#:        / /   \ \
+#:       0 ------- 1
+FACES = np.array([[1, 2, 3], [0, 3, 2], [0, 1, 3], [0, 2, 1]])
+#: Tetrahedra whose faces :func:`face_table` takes at a time
+FACE_CHUNK = 1 << 20
+
+
+def face_table(tets, *, chunk=FACE_CHUNK):
+    """The faces of ``tets`` (M, 4) grouped by triangle, without an (4 M, 3) array of them:
+    face ``f = i M + k`` is face ``i`` of tetrahedron ``k`` (:data:`FACES`).  Returns a dict:
+
+    * ``order``: the faces sorted by their sorted vertex triples, ties in face order (as a
+      stable lexicographic sort of the rows);
+    * ``start``: where each run of equal triangles begins in ``order``;
+    * ``count``: for each face, how many faces are its triangle (int32);
+    * ``odd``: for each face, whether its winding is an odd permutation of its sorted
+      vertices (two copies of a triangle wound alike have equal ``odd``).
+
+    One int64 key per face while the vertex ids allow (``n^3 < 2^63``), else the three
+    sorted columns, sorted together.  About 30 bytes a face."""
+    t = np.asarray(tets)
+    M = len(t)
+    F = 4 * M
+    n = int(t.max()) + 1 if t.size else 1
+    keyed = n ** 3 < 2 ** 63
+    cols = np.empty((1 if keyed else 3, F), np.int64)
+    odd = np.empty(F, bool)
+    for i, (a, b, c) in enumerate(FACES):
+        for s in range(0, M, chunk):
+            x, y, z = (t[s:s + chunk, j].astype(np.int64) for j in (a, b, c))
+            lo, hi = np.minimum(np.minimum(x, y), z), np.maximum(np.maximum(x, y), z)
+            mid = x + y + z - lo - hi
+            at = slice(i * M + s, i * M + s + len(x))
+            odd[at] = (x > y) ^ (x > z) ^ (y > z)  # the parity of the inversions
+            if keyed:
+                cols[0, at] = (lo * n + mid) * n + hi
+            else:
+                cols[0, at], cols[1, at], cols[2, at] = lo, mid, hi
+    if keyed:
+        order = np.argsort(cols[0], kind="stable")
+    else:
+        order = np.lexsort(cols[::-1])
+    new = np.ones(F, bool)
+    for col in cols:
+        c = col[order]
+        new[1:] &= c[1:] == c[:-1]
+        del c
+    new[1:] = ~new[1:]  # a run begins where any column changes
+    start = np.flatnonzero(new)
+    del new, cols
+    runs = np.diff(np.append(start, F)).astype(np.int32)
+    count = np.empty(F, np.int32)
+    count[order] = np.repeat(runs, runs)
+    return {"order": order, "start": start, "count": count, "odd": odd}
+
+
+def tet_faces(tets, f):
+    """Faces ``f`` of :func:`face_table`'s numbering as vertex triples, wound as :data:`FACES`."""
+    t = np.asarray(tets)
+    f = np.asarray(f, np.int64)
+    if len(f) == 0:
+        return np.zeros((0, 3), t.dtype)
+    return t[(f % len(t))[:, None], FACES[f // len(t)]]
+
+
 def boundary_triangles(tets) -> np.ndarray:
     """Faces belonging to exactly one tetrahedron (Definition 1), oriented outward.
 
@@ -383,10 +455,7 @@ def boundary_triangles(tets) -> np.ndarray:
     their negative side, i.e. ``orient3d(a, b, c, inside) < 0``.
     """
     tets = np.asarray(tets, np.int64)
-    # the face opposite local vertex i, ordered so that the tet's vertex i lies on its negative side
-    faces = np.concatenate([tets[:, [1, 2, 3]], tets[:, [0, 3, 2]], tets[:, [0, 1, 3]], tets[:, [0, 2, 1]]])
-    once = face_multiplicity(np.sort(faces, axis=1)) == 1
-    return faces[once]
+    return tet_faces(tets, np.flatnonzero(face_table(tets)["count"] == 1))
 
 
 def face_multiplicity(rows):

@@ -33,7 +33,7 @@ def check_tetrahedra_of_file(points, tets, place="the mesh"):
     checks (indices in range, four distinct vertices, no zero volume (exact), no face in more
     than two, none folded: :func:`_check_unfolded`), and their boundary triangles, oriented outward as
     :func:`trivsel.triangulation.boundary_triangles` gives them, from the same face count."""
-    from ..triangulation import _exact_signs, face_multiplicity
+    from ..triangulation import _exact_signs, face_table, tet_faces
 
     p = np.asarray(points, float)
     t = np.array(tets, dtype=np.int64, copy=True)
@@ -45,6 +45,7 @@ def check_tetrahedra_of_file(points, tets, place="the mesh"):
                          f"0..{len(p) - 1}")
     s = np.sort(t, axis=1)
     bad = np.flatnonzero((s[:, 1:] == s[:, :-1]).any(axis=1))
+    del s
     if len(bad):
         raise InputError(f"tetrahedron {int(bad[0])} of {place} repeats a vertex: {t[bad[0]].tolist()}")
     sign = _exact_signs(p, t)
@@ -52,32 +53,32 @@ def check_tetrahedra_of_file(points, tets, place="the mesh"):
         k = int(np.argmax(sign == 0))
         raise InputError(f"tetrahedron {k} of {place} is flat (zero volume): vertices {t[k].tolist()}")
     t[sign < 0] = t[sign < 0][:, [0, 2, 1, 3]]
-    # the face opposite local vertex i, the tet's vertex i on its negative side (boundary_triangles)
-    faces = np.concatenate([t[:, [1, 2, 3]], t[:, [0, 3, 2]], t[:, [0, 1, 3]], t[:, [0, 2, 1]]])
-    counts = face_multiplicity(np.sort(faces, axis=1))
-    if counts.max() > 2:
-        k = int(np.argmax(counts > 2))
-        raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle {sorted(faces[k].tolist())} is a "
-                         f"face of {int(counts[k])} tetrahedra")
+    del sign
+    faces = face_table(t)  # face f: the one opposite local vertex f // M of tetrahedron f % M
+    if faces["count"].max() > 2:
+        k = int(np.argmax(faces["count"] > 2))
+        raise InputError(f"{place} is not a manifold tetrahedral mesh: triangle "
+                         f"{sorted(tet_faces(t, [k])[0].tolist())} is a face of {int(faces['count'][k])} tetrahedra")
     _check_unfolded(t, faces, place)
-    return t, faces[counts == 1]
+    return t, tet_faces(t, np.flatnonzero(faces["count"] == 1))
 
 
 def _check_unfolded(t, faces, place):
     """One-line InputError when two of the positively oriented tetrahedra ``t`` fold over their
-    shared face: they lie on the same side of it (its two oriented copies in ``faces``, the
-    face opposite each local vertex, wind the same way; exact).  Tetrahedra that overlap
-    without sharing a face are not looked for."""
-    order = np.argsort(faces, axis=1)
-    d = np.diff(np.concatenate([order, order[:, :1]], axis=1), axis=1)
-    parity = d[:, 0] * d[:, 1] * d[:, 2] > 0  # the winding of each copy against its sorted vertices
-    key = np.sort(faces, axis=1)
-    o = np.lexsort(key.T[::-1])
-    same = np.flatnonzero((key[o[1:]] == key[o[:-1]]).all(axis=1) & (parity[o[1:]] == parity[o[:-1]]))
+    shared face: they lie on the same side of it (its two copies in :func:`face_table`
+    ``faces``, each wound with its tetrahedron's opposite vertex on its negative side, wind the
+    same way; exact).  Tetrahedra that overlap without sharing a face are not looked for."""
+    from ..triangulation import tet_faces
+
+    order, start, count, odd = faces["order"], faces["start"], faces["count"], faces["odd"]
+    first = order[start]  # a triangle's first copy, and its second where it has one
+    two = count[first] == 2
+    a, b = first[two], order[start[two] + 1]
+    same = np.flatnonzero(odd[a] == odd[b])
     if len(same):
-        a, b = (int(o[same[0] + j]) % len(t) for j in (0, 1))
-        raise InputError(f"{place} is folded: tetrahedra {a} and {b} share triangle {key[o[same[0]]].tolist()} and "
-                         "lie on the same side of it")
+        a, b = int(a[same[0]]), int(b[same[0]])
+        raise InputError(f"{place} is folded: tetrahedra {a % len(t)} and {b % len(t)} share triangle "
+                         f"{sorted(tet_faces(t, [a])[0].tolist())} and lie on the same side of it")
 
 
 def locate_points(points, tets, which, place="the mesh"):

@@ -35,6 +35,12 @@ BLOCK_STAGES = "trivsel.blocks.decimate"
 #: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
 BYTES_PER_POINT = 1000
 FIT_BYTES_PER_POINT = 150
+#: Peak bytes per tetrahedron of a decimation that starts from a tetrahedral mesh read from a
+#: file (its reading, checks and mesh state; about 6.7 tetrahedra a point): 1.44 GB for 1 M
+#: points and 6.75 M tetrahedra with fitted values, 0.58 GB for 0.3 M and 2.0 M, whole processes
+#: (docs/notes).  Such meshes have more tetrahedra a point than a grid's Kuhn split, and each
+#: costs more than a grid's.
+MESH_BYTES_PER_TET = 200
 #: With ``block``, bytes per point of the whole volume besides one block's or region's decimation:
 #: the values, each point's tetrahedron and vertex flag, its grid coordinates in a pass, the mesh.
 BLOCKED_BYTES_PER_POINT = 100
@@ -62,6 +68,9 @@ def memory(data, options):
         piece = min(float(2 * options.block + 1) ** 3, float(N))
         return [(BLOCKED_BYTES_PER_POINT * float(N) + BYTES_PER_POINT * piece + fit * float(N),
                  f"decimating {N} points in blocks of {options.block}")]
+    if getattr(data, "tets", None) is not None:  # a mesh's own tetrahedra set its size
+        M = len(data.tets)
+        return [(MESH_BYTES_PER_TET * float(M) + fit * float(N), f"decimating a mesh of {N} points and {M} tetrahedra")]
     per_point = BYTES_PER_POINT + fit
     need = [(per_point * float(N), f"decimating {N} points")]
     if not data.is_grid and data.tets is None:
