@@ -119,6 +119,29 @@ def test_a_tolerance_stop_holds_across_the_seams(tmp_path, stop, tol, error, why
     assert s["stopped"] == why
 
 
+def test_an_e_inf_tolerance_holds_to_the_bit_and_a_count_it_stops_short_of_is_said(tmp_path, capsys):
+    """Values in steps of the tolerance, so that the kernels keep residuals at the tolerance
+    itself: the final errors are computed as the kernels computed those residuals, so E_inf
+    is at most tol_inf to the bit, in one process (``reduce --block``) and as jobs; and the
+    jobs say that the count was not reached, and why, as ``reduce`` does."""
+    g = np.indices((9, 9, 9)).astype(float)
+    npy = tmp_path / "g9.npy"
+    np.save(npy, np.sin(g[0] / 3) + g[1] * g[2] / 20)
+    assert main(["reduce", str(npy), "--method", "decimate", "--block", "4", "--tol-inf", "0.05", "--out",
+                 str(tmp_path / "one")]) == 0
+    assert "tolerance was not met" not in capsys.readouterr().err
+    import pandas as pd
+
+    one = pd.read_csv(tmp_path / "one" / "errors.csv")
+    assert one["E_inf"].max() <= 0.05
+    assert main(["blocks", str(npy), "--method", "decimate", "--block", "4", "--count", "100", "--tol-inf", "0.05",
+                 "--out", str(tmp_path / "jobs"), "-c", "2"]) == 0
+    s = json.loads((tmp_path / "jobs" / "summary.json").read_text())
+    assert s["E_inf"] <= 0.05 and s["vertices"] > 100
+    assert f"trivsel blocks: warning: count 100 not reached: the run stopped at {s['vertices']} points (no collapse " \
+           "was left that keeps every residual within tol_inf)" in capsys.readouterr().err.splitlines()
+
+
 def test_a_run_stopped_half_way_resumes_to_the_same_mesh(tmp_path, capsys):
     """A run that Snakemake stops after the third pass's step (its temporary files half used)
     ends without results; the same command again completes it, to the mesh of one process."""

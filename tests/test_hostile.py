@@ -196,6 +196,17 @@ def _cases(tmp: Path):
         ("blocks: -c 0", ["blocks", *BLOCKS_FN, "-c", "0", "--out", out], 2,
          "cores (-c) must be 'all' or an integer >= 1, got '0'"),
         ("blocks: -c -1", ["blocks", *BLOCKS_FN, "-c", "-1", "--out", out], 2, "cores (-c) must be 'all'"),
+        ("blocks: --out cannot be created", ["blocks", *BLOCKS_DEC, "--fraction", "0.3", "--out",
+                                             "/proc/trivsel-no-such-folder/out"], 2,
+         ("cannot create the output folder '/proc/trivsel-no-such-folder/out'",)),
+        ("blocks: --values fit with a method that writes data values",
+         ["blocks", *BLOCKS_FN, "--values", "fit", "--out", out], 2,
+         ("method 'greedy' writes the data values in blocks, not ['fit']", "--values applies to --method decimate")),
+        ("blocks: --n with an input volume", ["blocks", *GRID_NPY(tmp), "--n", "5", "--block", "4", "--tol-inf",
+                                              "0.1", "--out", out], 2,
+         ("--n applies to --function, not to an input volume (got n 5",)),
+        ("--n with an input file", ["reduce", *GRID_NPY(tmp), "--n", "5", "--fractions", "0.5", "--out", out], 2,
+         ("--n applies to --function, not to input files (got --n 5",)),
         ("blocks: a billion blocks", ["blocks", "--function", "4", "--n", "2000", "--block", "2", "--tol-inf", "0.1",
                                       "--out", out], 2, "into 1,000,000,000 blocks (1,000,003,008 jobs), more than "
                                                         "the 20,000 a run plans: use --block 75 or more"),
@@ -625,6 +636,16 @@ def _run(argv):
     return code, err.getvalue(), out.getvalue()
 
 
+#: Notices a first run on a machine prints before its work (the one-time compile of a method's
+#: kernels, or the wait for another process compiling them): not part of a refusal
+NOTICES = ("trivsel: compiling the ", "trivsel: waiting for another process that is compiling ")
+
+
+def _lines(text):
+    """The non-empty lines of ``text`` but the one-time compile's notices."""
+    return [x for x in text.strip().splitlines() if x and not x.startswith(NOTICES)]
+
+
 def _names():
     import tempfile
 
@@ -641,7 +662,7 @@ def test_hostile_case_gives_one_line_and_no_output(tmp_path, name):
     code, err, out = _run(argv)
     assert code == expected, (code, err)
     text = err if expected == 2 else out
-    lines = [x for x in text.strip().splitlines() if x]
+    lines = _lines(text)
     if expected == 2:
         assert len(lines) == 1 and lines[0].startswith("trivsel"), err
         assert "Traceback" not in err
@@ -654,7 +675,7 @@ def test_hostile_case_gives_one_line_and_no_output(tmp_path, name):
 # ----------------------------------------------------------------------------- blocks: folders with a history
 
 def _one_line(err, fragment):
-    lines = [x for x in err.strip().splitlines() if x]
+    lines = _lines(err)
     assert len(lines) == 1 and lines[0].startswith("trivsel: error: ") and "Traceback" not in err, err
     assert fragment in lines[0], err
 
@@ -971,3 +992,30 @@ if __name__ == "__main__":  # the matrix for notes: case | exit | message
             msg = (err.strip() or out.strip()).splitlines()
             print(f"| {name} | {code} | {msg[0] if msg else ''} |")
     sys.exit(0)
+
+
+@pytest.mark.parametrize("argv", [["reduce", "--function", "4", "--n", "6", "--fractions", "0.5", "0.2"],
+                                  ["compare", "GOLDEN", "GOLDEN"]])
+def test_a_closed_stdout_ends_the_command_quietly_and_keeps_its_files(tmp_path, argv):
+    """`trivsel ... | head`: the reader goes before the command prints.  No traceback; status 141
+    (128 + SIGPIPE, as a Unix tool); the files the command wrote are complete."""
+    import os
+    import subprocess
+
+    golden = tmp_path / "golden.csv"
+    golden.write_text("a,b\n1,2\n")
+    argv = [str(golden) if x == "GOLDEN" else x for x in argv]
+    if argv[0] == "reduce":
+        argv += ["--out", str(tmp_path / "out")]
+    r, w = os.pipe()
+    os.close(r)  # nobody will read what the command prints
+    try:
+        p = subprocess.run([sys.executable, "-m", "trivsel", *argv], stdout=w, stderr=subprocess.PIPE, text=True,
+                           timeout=300)
+    finally:
+        os.close(w)
+    assert p.returncode == 141 and "Traceback" not in p.stderr and "BrokenPipe" not in p.stderr, p.stderr
+    if argv[0] == "reduce":
+        assert {x.name for x in (tmp_path / "out").iterdir()} >= {"errors.csv", "mesh_0.2.vtu", "mesh_0.5.vtu",
+                                                                   "result.json"}
+        assert "0.2" in (tmp_path / "out" / "errors.csv").read_text()

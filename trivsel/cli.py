@@ -33,7 +33,11 @@ class _Parser(argparse.ArgumentParser):
 
 def build_parser():
     parser = _Parser(prog="trivsel", description="Data point selection for piecewise trilinear "
-                                     "approximation (Hamann & Chen 1994).")
+                                     "approximation (Hamann & Chen 1994).",
+                     epilog="exit status: 0 done; 1 a comparison found changes (compare) or a job failed "
+                            "(blocks); 2 bad input, one line on stderr, nothing written; 130 interrupted (Ctrl-C, "
+                            "SIGTERM), the output folder as it was; 141 stdout closed before the command printed "
+                            "(`| head`), what it wrote is kept")
     parser.add_argument("--version", action="version", version=_version())
     sub = parser.add_subparsers(dest="command", required=True)
 
@@ -44,7 +48,7 @@ def build_parser():
     r.add_argument("input", nargs="?", help="data file (omit with --function)")
     r.add_argument("--function", help="Table-1 function: 1-5 or quadratic, saddle, cubic, exponential, "
                                       "trigonometric")
-    r.add_argument("--n", type=int, default=16, help="grid intervals per axis for --function (default 16)")
+    r.add_argument("--n", type=int, help="grid intervals per axis for --function (default 16)")
     r.add_argument("--array", help="point-data array / value column of the input file")
     r.add_argument("--volume", type=int, metavar="K",
                    help="volume K (0-based) of a 4-D NIfTI or NRRD image (required when it has several)")
@@ -248,6 +252,10 @@ def _cmd_reduce(a):
 
     if (a.input is None) == (a.function is None):
         raise InputError("give either an input file or --function (not both)")
+    if a.function is None and a.n is not None:
+        raise InputError(f"--n applies to --function, not to input files (got --n {a.n} with {a.input!r})")
+    if a.function is not None and a.n is None:
+        a.n = 16
     chosen = a.method in (None, AUTO)
     if chosen:
         a.method = choose_method(a.function is not None,
@@ -535,6 +543,9 @@ def _cmd_blocks(a, snakemake_args):
         raise InputError("give either an input volume or --function (and --n), not both")
     if config.get("function") is not None and config.get("n") is None:
         raise InputError("give --n (grid intervals per axis) with --function")
+    if config.get("function") is None and config.get("n") is not None:
+        raise InputError(f"--n applies to --function, not to an input volume (got n {shown(config['n'])} with "
+                         f"{str(config.get('input'))!r})")
     needed = ("block",) if config.get("method") == "decimate" else ("block", "tol_inf")
     for key in needed:
         if config.get(key) is None:
@@ -563,6 +574,9 @@ def _cmd_blocks(a, snakemake_args):
           f"tetrahedra, E_rms {s['E_rms']:.4g}, E_inf {s['E_inf']:.4g}"
           + (f"; fitted values: E_rms {s['fit']['E_rms']:.4g}, E_inf {s['fit']['E_inf']:.4g}" if "fit" in s else ""),
           file=sys.stderr)
+    if s.get("target") is not None and s["vertices"] > s["target"]:  # as reduce warns
+        print(f"trivsel blocks: warning: count {s['target']} not reached: the run stopped at {s['vertices']} points "
+              f"({s.get('stopped') or 'no reason recorded'})", file=sys.stderr)
     for note in s.get("notes", []):
         print(f"trivsel blocks: note: {note}", file=sys.stderr)
     return 0
@@ -589,8 +603,26 @@ def _terminate(signum, frame):
     raise KeyboardInterrupt
 
 
+#: The exit status when stdout is closed before the command has printed (128 + SIGPIPE, as a
+#: Unix tool that the signal ends)
+SIGPIPE_STATUS = 141
+
+
+def _stdout_to_devnull():
+    """Point stdout's file descriptor at the null device, so that the interpreter's last flush
+    of a closed pipe does not print a traceback."""
+    import os
+
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+    except (OSError, ValueError):  # no file descriptor (stdout replaced in a test, say)
+        pass
+
+
 def main(argv=None):
-    """Run the command line; returns the exit status (2: bad input, 130: interrupted)."""
+    """Run the command line; returns the exit status (2: bad input, 130: interrupted, 141: stdout
+    closed before the command had printed)."""
     import signal
     import threading
 
@@ -618,6 +650,9 @@ def main(argv=None):
     except InputError as exc:
         print(f"trivsel: error: {exc}", file=sys.stderr)
         return 2
+    except BrokenPipeError:  # stdout closed early (`... | head`): the files written stay, as a Unix tool's would
+        _stdout_to_devnull()
+        return SIGPIPE_STATUS
     except KeyboardInterrupt:
         if argv[:1] == ["blocks"]:
             print("trivsel: interrupted; jobs that had started were stopped and finished ones are kept: run it "

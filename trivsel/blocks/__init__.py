@@ -652,6 +652,11 @@ def make_config(config):
         raise InputError(f"merged must be true or false, got {merged!r}")
     for key in STOP_KEYS:
         if config.get(key) is not None and not stages:
+            if key == "values":  # not a stop: the values written, which are the data's in these blocks
+                if list(config[key]) == ["data"]:
+                    continue
+                raise InputError(f"method {method!r} writes the data values in blocks, not {shown(config[key])}: "
+                                 "--values applies to --method decimate")
             raise InputError(f"method {method!r} stops in blocks at tol_inf only, not at {key}: use --tol-inf "
                              "(or --method decimate)")
     vol = _open(cfg)
@@ -1240,7 +1245,17 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 shutil.rmtree(plan_in, ignore_errors=True)
 
     made = [d for d in (out, *out.parents) if not d.exists()]  # the folders this run makes
-    out.mkdir(parents=True, exist_ok=True)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:  # a system folder, a read-only or full file system
+        from ..exceptions import one_line
+
+        for d in made:
+            try:
+                d.rmdir()
+            except OSError:
+                pass
+        raise InputError(f"cannot create the output folder {str(out)!r}: {one_line(exc)}") from None
     lock = _lock_folder(out)
     fresh = False
     try:

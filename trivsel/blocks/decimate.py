@@ -637,15 +637,15 @@ def _finish(out, st):
     def chunks():  # the points in the fit's own chunks, so that its sums are those of one piece's fit
         for s in range(0, N, CHUNK):
             idx = np.arange(s, min(s + CHUNK, N), dtype=np.int64)
-            verts, w = B.point_weights_of(plan.shape, T, owner, idx)
+            verts, w, value = B.point_weights_of(plan.shape, T, owner, idx, f)
             ijk = np.stack(np.unravel_index(idx, plan.shape), axis=1)
-            yield idx, verts, w, np.all((ijk > 0) & (ijk < hi), axis=1)
+            yield idx, verts, w, value, np.all((ijk > 0) & (ijk < hi), axis=1)
 
     data_sums = ErrorSums()
 
-    def summed():  # the data values' errors, summed on the way through the points
-        for idx, verts, w, inner in chunks():
-            data_sums.add(f[idx] - np.einsum("ij,ij->i", w, f[verts]), inner)
+    def summed():  # the data values' errors (as the kernels computed them), summed on the way through the points
+        for idx, verts, w, value, inner in chunks():
+            data_sums.add(f[idx] - value, inner)
             yield idx, verts, w
 
     values = list(cfg.get("values") or ["data"])
@@ -660,7 +660,7 @@ def _finish(out, st):
         fit_sums = ErrorSums()
         at = np.full(N, -1, B.index_type(len(vertices)))  # a vertex's place in ``vertices``
         at[vertices] = np.arange(len(vertices), dtype=at.dtype)
-        for idx, verts, w, inner in chunks():
+        for idx, verts, w, _, inner in chunks():
             fit_sums.add(f[idx] - np.einsum("ij,ij->i", w, fitted[at[verts]]), inner)
         del at
         fit = {"values": fitted, "errors": fit_sums.norms()}

@@ -948,14 +948,15 @@ def quality_note(n_points, target, block):
             f"one piece's E_RMS (docs/methods.md); use larger blocks, or one piece where it fits")
 
 
-def point_weights(shape, tets, ptet):
+def point_weights(shape, tets, ptet, values=None):
     """For every point of the grid ``shape``, the 4 vertices of the tetrahedron that holds it
     (``tets[ptet[p]]``) and its barycentric weights there, from integer determinants (a
-    vertex, ``ptet`` -1: itself with weight 1), as :meth:`Decimation.point_weights` gives them."""
-    return point_weights_of(shape, tets, ptet, np.arange(int(np.prod(shape)), dtype=np.int64))
+    vertex, ``ptet`` -1: itself with weight 1), as :meth:`Decimation.point_weights` gives them;
+    with ``values``, also the interpolant there (:func:`point_weights_of`)."""
+    return point_weights_of(shape, tets, ptet, np.arange(int(np.prod(shape)), dtype=np.int64), values)
 
 
-def point_weights_of(shape, tets, ptet, points):
+def point_weights_of(shape, tets, ptet, points, values=None):
     """:func:`point_weights` of the grid points ``points`` only (global indices), so that a
     caller can go through the grid in chunks.
 
@@ -964,11 +965,17 @@ def point_weights_of(shape, tets, ptet, points):
 
         l0 = d1 . (d2 x d3)     l1 = -d0 . (d2 x d3)
         l2 = d3 . (d0 x d1)     l3 = -d2 . (d0 x d1)
+
+    With ``values`` (the grid's, flat), also returns the linear interpolant at each point
+    (eq. 13) as the collapse kernel computes it, ``(l0 f0 + l1 f1 + l2 f2 + l3 f3) / (l0 + l1 +
+    l2 + l3)`` in that order, not from the rounded weights: a residual the kernel kept within an
+    E_inf tolerance is then the same number here, to the bit.
     """
     points = np.asarray(points, np.int64)
     verts = np.repeat(points[:, None], 4, axis=1)
     w = np.zeros((len(points), 4))
     w[:, 0] = 1.0
+    value = None if values is None else np.asarray(values)[points].astype(np.float64)
     inside = np.flatnonzero(ptet[points] >= 0)
     for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
         corners = tets[ptet[points[part]]]
@@ -979,7 +986,11 @@ def point_weights_of(shape, tets, ptet, points):
         lam = np.stack([_dot(d[1], c23), -_dot(d[0], c23), _dot(d[3], c01), -_dot(d[2], c01)], axis=1)
         verts[part] = corners
         w[part] = lam / lam.sum(axis=1, keepdims=True)
-    return verts, w
+        if value is not None:
+            lf, fc = lam.astype(np.float64), np.asarray(values)[corners].astype(np.float64)
+            value[part] = (lf[:, 0] * fc[:, 0] + lf[:, 1] * fc[:, 1] + lf[:, 2] * fc[:, 2] + lf[:, 3] * fc[:, 3]) \
+                / (lf[:, 0] + lf[:, 1] + lf[:, 2] + lf[:, 3])
+    return (verts, w) if values is None else (verts, w, value)
 
 
 def _grid_coordinates(p, shape):
@@ -1026,9 +1037,10 @@ def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=
     out = decimate_in_blocks(vol, block, count=target, tol_rms=tol_rms, tol_inf=tol_inf, threads=threads,
                              progress=say)
     te = time.perf_counter()
-    verts, w = point_weights(data.shape, out["tets"], out["ptet"])
     f = vol.reshape(-1)
-    r = f - np.einsum("ij,ij->i", w, f[verts])
+    verts, w, value = point_weights(data.shape, out["tets"], out["ptet"], f)
+    r = f - value  # as the kernels computed the residuals they kept within tol_inf
+    del value
     mesh = SimpleNamespace(point_weights=lambda: (verts, w), vertices=lambda: out["vertices"])
     fit = fit_on_mesh(mesh, f, interior) if "fit" in values else None
     del verts, w, mesh

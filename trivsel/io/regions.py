@@ -254,7 +254,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
         A Table-1 function instead of a file (1-5 or its name).
     n : int, optional
         Grid intervals per axis of ``function`` (default 16, as :func:`~trivsel.data.sample_grid`);
-        ignored with a ``path`` (as ``trivsel reduce`` ignores ``--n`` with an input file).
+        refused with a ``path`` (as ``trivsel reduce`` refuses ``--n`` with an input file).
     array : str, optional
         The array of a Zarr group, or the point-data array of a VTK or ``.npz`` file.
     volume : int, optional
@@ -263,7 +263,7 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
     Raises
     ------
     InputError
-        One line: both or neither of ``path`` and ``function``, a missing file, an
+        One line: both or neither of ``path`` and ``function``, ``n`` with a ``path``, a missing file, an
         unsupported or scattered source, or anything :func:`trivsel.io.load` refuses.
     """
     if (path is None) == (function is None):
@@ -275,6 +275,8 @@ def open_volume(path=None, *, function=None, n=None, array: str | None = None, v
             raise InputError(f"--{'array' if array is not None else 'volume'} applies to input files, "
                              "not to --function")
         return _function_volume(function, 16 if n is None else n)
+    if n is not None:
+        raise InputError(f"--n applies to --function, not to input files (got n {shown(n)} with {str(path)!r})")
     p = Path(path)
     if not p.exists():
         raise InputError(f"input file {str(p)!r} does not exist")
