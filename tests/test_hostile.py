@@ -301,15 +301,77 @@ def _cases(tmp: Path):
          ("cannot read table", "e.csv' as CSV")),
         ("compare: binary junk", ["compare", _write(tmp, "j.csv", _text(b"\xc1\xff\x00junk")), existing], 2,
          ("cannot read table", "j.csv' as CSV")),
-        ("compare: no numeric column", ["compare", existing, existing], 2,
-         ("a_file' has no numeric column to compare",)),
+        ("compare: no numeric column", ["compare", *[_write(tmp, "w.csv", _text("name,kind\na,b\n"))] * 2], 2,
+         ("w.csv' has no numeric column to compare",)),
         ("compare: rtol nan", ["compare", existing, existing, "--rtol", "nan"], 2,
          ("--rtol must be a finite number >= 0, got nan",)),
         ("compare: tables differ", ["compare", _write(tmp, "n.csv", _text("a,b\n1,2\n")),
                                     _write(tmp, "g.csv", _text("a,b\n1,3\n"))], 1,
          ("1 offending cell(s)", "b: new 2 != golden 3")),
     ]
-    return cases + _output_cases(tmp) + _input_cases(tmp)
+    return cases + _output_cases(tmp) + _input_cases(tmp) + _compare_cases(tmp)
+
+
+#: An errors.csv of a file's run with data and fit values: its rows differ only in the key column ``values``.
+GOLD_ROWS = ["function,n,input,method,values,fraction,n_selected,E_rms,seconds",
+             ",,g9,decimate,data,0.5,10,0.1,1.5", ",,g9,decimate,fit,0.5,10,0.09,1.2"]
+
+
+def _table(tmp: Path, name: str, rows=GOLD_ROWS, drop=(), rename=None, add=None) -> str:
+    """GOLD_ROWS (or ``rows``) as ``name``, without the columns ``drop``, with the columns renamed
+    by ``rename`` and an extra column ``add`` = (name, value) at the end."""
+    table = [r.split(",") for r in rows]
+    keep = [i for i, c in enumerate(table[0]) if c not in drop]
+    table = [[r[i] for i in keep] for r in table]
+    table[0] = [(rename or {}).get(c, c) for c in table[0]]
+    if add:
+        table = [r + [add[0] if i == 0 else add[1]] for i, r in enumerate(table)]
+    return _write(tmp, name, _text("\n".join(",".join(r) for r in table) + "\n"))
+
+
+def _vtu(p):
+    import pyvista as pv
+
+    pv.ImageData(dimensions=(3, 3, 3)).cast_to_unstructured_grid().save(p)
+
+
+def _compare_cases(tmp: Path):
+    """``trivsel compare`` on tables it cannot compare (exit 2) and on column changes (exit 1)."""
+    gold = _table(tmp, "gold.csv")
+    ragged = "\n".join(GOLD_ROWS[:2] + [GOLD_ROWS[2] + ",9"]) + "\n"
+    twice = "\n".join([GOLD_ROWS[0].replace("E_rms", "E_rms,E_rms")] + [r + ",0.1" for r in GOLD_ROWS[1:]]) + "\n"
+    return [
+        ("compare: key column missing from the new table", ["compare", _table(tmp, "nm.csv", drop=["method"]), gold],
+         2, ("key column 'method' of the golden table", "gold.csv' is missing from the new table", "nm.csv'")),
+        ("compare: key column renamed in the new table", ["compare", _table(tmp, "Nm.csv", rename={"method": "Method"}),
+                                                          gold], 2, ("key column 'method'", "(it has 'Method')")),
+        ("compare: key column values missing (data and fit rows)",
+         ["compare", _table(tmp, "nv.csv", drop=["values"], rows=GOLD_ROWS[:2]), gold], 2,
+         ("key column 'values' of the golden table", "is missing from the new table")),
+        ("compare: key column missing from the golden table", ["compare", gold, _table(tmp, "gnv.csv", drop=["values"])],
+         2, ("key column 'values' of the new table", "is missing from the golden table", "gnv.csv'")),
+        ("compare: ragged row", ["compare", _write(tmp, "rag.csv", _text(ragged)), gold], 2,
+         ("cannot read table", "rag.csv' as CSV: line 3 has 10 fields, the header 9")),
+        ("compare: duplicate column name", ["compare", _write(tmp, "two.csv", _text(twice)), gold], 2,
+         ("two.csv' as CSV: the header names column 'E_rms' twice (columns 8 and 9)",)),
+        ("compare: a mesh file as the new table", ["compare", _write(tmp, "m.vtu", _vtu), gold], 2,
+         ("m.vtu' as CSV: it is XML, not comma-separated values",)),
+        ("compare: a table of no rows", ["compare", _table(tmp, "h.csv", rows=GOLD_ROWS[:1]), gold], 2,
+         ("h.csv' has no rows, only the header",)),
+        ("compare: a key twice in the new table", ["compare", _table(tmp, "dk.csv", rows=GOLD_ROWS[:2] + GOLD_ROWS[1:2]), gold], 2,
+         ("new table", "dk.csv' has two rows with the key input=g9, method=decimate, values=data, fraction=0.5 "
+          "(data rows 1 and 2)")),
+        ("compare: a key twice in the golden table", ["compare", gold, _table(tmp, "gdk.csv", rows=GOLD_ROWS + GOLD_ROWS[2:])],
+         2, ("golden table", "gdk.csv' has two rows with the key", "values=fit", "(data rows 2 and 3)")),
+        ("compare: no column in common", ["compare", _write(tmp, "ab.csv", _text("a,b\n1,2\n")), gold], 2,
+         ("ab.csv' has none of the columns of the golden table",)),
+        ("compare: a compared column missing", ["compare", _table(tmp, "ne.csv", drop=["E_rms"]), gold], 1,
+         ("1 offending cell(s)", "E_rms: missing column")),
+        ("compare: an extra column", ["compare", _table(tmp, "ex.csv", add=("E_max", "0.3")), gold], 1,
+         ("1 offending cell(s)", "E_max: extra column")),
+        ("compare: a wall-clock column missing", ["compare", _table(tmp, "ns.csv", drop=["seconds"]), gold], 0,
+         ("ns.csv matches",)),
+    ]
 
 
 BIG = 2**53 + 1  # the first integer float64 cannot hold

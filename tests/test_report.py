@@ -14,6 +14,7 @@ import pytest
 
 import trivsel
 from trivsel import regression as compare
+from trivsel.exceptions import InputError
 from trivsel.study import report
 from trivsel.triangulation import kuhn_tetrahedra
 
@@ -192,6 +193,64 @@ def test_compare_missing_rows_and_columns(table_csv, tmp_path):
     assert sum(m.reason == "missing row" for m in bad) == 3
     with pytest.raises(FileNotFoundError):
         compare.compare_tables(tmp_path / "nope.csv", table_csv)
+
+
+def test_compare_refuses_a_key_column_that_one_table_lacks(table_csv, tmp_path):
+    """A key column (here ``function``) missing or renamed in either table is an InputError
+    naming the column and both tables, not rows matched on the keys left."""
+    df = pd.read_csv(table_csv)
+    renamed = tmp_path / "renamed.csv"
+    df.rename(columns={"function": "Function"}).to_csv(renamed, index=False)
+    with pytest.raises(InputError, match=r"key column 'function' of the golden table '.*table1.csv' is missing "
+                                         r"from the new table '.*renamed.csv' \(it has 'Function'\)"):
+        compare.compare_tables(renamed, table_csv)
+    with pytest.raises(InputError, match="key column 'function' of the new table .* is missing from the golden"):
+        compare.compare_tables(table_csv, renamed)
+    with pytest.raises(InputError, match="key column 'fraction' of the golden table is missing from the new table"):
+        compare.compare_frames(df.drop(columns=["fraction"]), df)
+
+
+def test_compare_reports_columns_that_one_table_lacks(table_csv, tmp_path):
+    """A compared column the new table lacks and a column only the new table has are offending
+    cells (exit status 1 in the CLI); a wall-clock column is neither."""
+    df = pd.read_csv(table_csv)
+    bad = compare.compare_frames(df.drop(columns=["E_inf"]).assign(E_max=1.0, note="x", seconds=2.0), df)
+    assert [(m.column, m.reason) for m in bad] == [("E_inf", "missing column"), ("E_max", "extra column"),
+                                                   ("note", "extra column")]
+    assert "E_max: extra column" in compare.format_mismatches(bad)
+    assert compare.compare_frames(df, df.assign(seconds=2.0)) == []
+
+
+def test_compare_refuses_a_key_that_two_rows_share(table_csv):
+    df = pd.read_csv(table_csv)
+    twice = pd.concat([df, df.iloc[[4]]], ignore_index=True)
+    with pytest.raises(InputError, match=r"the new table has two rows with the key function=2, fraction=0.2 "
+                                         r"\(data rows 5 and 16\)"):
+        compare.compare_frames(twice, df)
+    with pytest.raises(InputError, match="the golden table 'g.csv' has two rows with the key function=2"):
+        compare.compare_frames(df, twice, names=("n.csv", "g.csv"))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("function,fraction,E_rms\n1,0.5,0.1,7\n2,0.5,0.2\n", "line 2 has 4 fields, the header 3"),
+    ("function,fraction,E_rms\n1,0.5\n", "line 2 has 2 fields, the header 3"),
+    ("function,E_rms,E_rms\n1,0.1,0.2\n", "the header names column 'E_rms' twice (columns 2 and 3)"),
+    (",function,E_rms\n0,1,0.1\n", "column 1 of the header has no name"),
+    ('<?xml version="1.0"?>\n<VTKFile type="UnstructuredGrid">\n', "it is XML, not comma-separated values"),
+    ("", "the file is empty"),
+])
+def test_read_table_refuses_what_pandas_would_misread(tmp_path, text, message):
+    p = tmp_path / "t.csv"
+    p.write_text(text)
+    with pytest.raises(InputError) as info:
+        compare.read_table(p)
+    assert str(info.value).startswith(f"cannot read table {str(p)!r} as CSV: {message}")
+
+
+def test_the_report_table_has_the_golden_columns():
+    """The CI regression compares results/report/table1.csv with the golden table: they must
+    have the same columns, or every run would report missing or extra columns."""
+    assert list(pd.read_csv(GOLDEN).columns) == report.TABLE1_COLUMNS
 
 
 def _trivsel_cli():

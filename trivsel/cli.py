@@ -97,8 +97,11 @@ def build_parser():
                         "method's driver (default: all)")
 
     c = sub.add_parser("compare", help="compare an error table with a golden one; exit 1 on any change",
-                       description="Cells are matched on their key columns and compared with "
-                                   "|new - golden| <= atol + rtol * |golden|.")
+                       description="Rows are matched on their key columns (function, n, input, method, "
+                                   "values, fraction, ...) and cells compared with |new - golden| <= atol + rtol * "
+                                   "|golden|.  Exit 1 on a changed cell, a missing or extra row, or a column that "
+                                   "one table has and the other lacks; exit 2 on a table that is not a CSV table, "
+                                   "a key column that one table lacks, or a key that two rows share.")
     c.add_argument("new")
     c.add_argument("golden")
     c.add_argument("--rtol", type=float, default=1e-6)
@@ -484,26 +487,16 @@ def _cmd_compare(a):
     import math
     import os
 
-    import pandas as pd
-
-    from .regression import IGNORED_COLUMNS, compare_frames, format_mismatches
+    from .regression import compare_frames, format_mismatches, read_table
 
     for name, tol in (("--rtol", a.rtol), ("--atol", a.atol)):
         if not (math.isfinite(tol) and tol >= 0):
             raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
-    frames = []
     for path in (a.new, a.golden):
         if not os.path.isfile(path):
             raise InputError(f"table {path!r} " + ("is not a file" if os.path.exists(path) else "does not exist"))
-        try:
-            frames.append(pd.read_csv(path))
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
-            raise InputError(f"cannot read table {path!r} as CSV: {one_line(exc, first=True)}") from None
-    golden = frames[1]
-    if not [c for c in golden.columns if c not in IGNORED_COLUMNS and pd.api.types.is_numeric_dtype(golden[c])]:
-        raise InputError(f"table {a.golden!r} has no numeric column to compare (columns: "
-                         f"{', '.join(map(str, golden.columns)) or 'none'})")
-    mism = compare_frames(frames[0], golden, rtol=a.rtol, atol=a.atol)
+    new, golden = read_table(a.new), read_table(a.golden)
+    mism = compare_frames(new, golden, rtol=a.rtol, atol=a.atol, names=(a.new, a.golden))
     if mism:
         print(format_mismatches(mism, a.new, a.golden, a.rtol, a.atol))
         return 1
