@@ -33,6 +33,11 @@ def _text(s: str | bytes):
     return lambda p: (p.write_bytes(s) if isinstance(s, bytes) else p.write_text(s))
 
 
+def _csv(header: str, points, row):
+    """A CSV of the line ``header`` and, per point ``(a, b, c)`` of ``points``, the fields ``row(a, b, c)``."""
+    return _text(header + "\n" + "".join(",".join(f"{v}" for v in row(*q)) + "\n" for q in points))
+
+
 def _cloud(n=50, seed=0):
     rng = np.random.default_rng(seed)
     p = rng.random((n, 3))
@@ -643,11 +648,11 @@ def _input_cases(tmp: Path):
                                                                                   values=f[:40])),
                                                "--method", "greedy", *red], 2,
          ("the points are too near a plane or a line for 'greedy'", "--method decimate takes them")),
-        ("CSV with two columns that could be the values", ["reduce", _write(tmp, "vv.csv", _text(
-            "x,y,z,Value,VALUE\n" + "".join(f"{a},{b},{c},{a},{a + 100}\n" for a, b, c in p))), *red], 2,
+        ("CSV with two columns that could be the values", ["reduce", _write(tmp, "vv.csv", _csv(
+            "x,y,z,Value,VALUE", p, lambda a, b, c: (a, b, c, a, a + 100))), *red], 2,
          "has 2 columns that could be 'value' ('Value', 'VALUE'): rename all but one"),
-        ("CSV of true/false values", ["reduce", _write(tmp, "tf.csv", _text(
-            "x,y,z,value\n" + "".join(f"{a},{b},{c},{a > 0.5}\n" for a, b, c in p))), *red], 2,
+        ("CSV of true/false values", ["reduce", _write(tmp, "tf.csv", _csv(
+            "x,y,z,value", p, lambda a, b, c: (a, b, c, a > 0.5))), *red], 2,
          "column 'value' holds true/false, not numbers"),
         ("CSV row with a field too many", ["reduce", _write(tmp, "row.csv", _text("x,y,z,value\n1,2,3,4\n1,2,3,4,5\n")),
                                            *red], 2, "Expected 4 fields in line 3, saw 5"),
@@ -675,6 +680,33 @@ def _input_cases(tmp: Path):
         ("npz grid of a 3 x 1 spacing", ["reduce", _write(tmp, "s31.npz", _npz(values=np.zeros((3, 3, 3)),
                                                                                spacing=np.ones((3, 1)))), *red], 2,
          "grid spacing must be 3 positive finite numbers, got [[1.0], [1.0], [1.0]]"),
+        ("npz of scattered points beside a 3-D values grid", ["reduce", _write(tmp, "pg.npz", _npz(
+            points=p[:10], values=grid)), *red], 2,
+         "pg.npz' is ambiguous: it holds a 3-D grid 'values' (3, 4, 5) and scattered 'points' (10, 3)"),
+        ("npz of scattered points with a grid's origin and spacing", ["reduce", _write(tmp, "po.npz", _npz(
+            points=p, values=f, origin=np.ones(3), spacing=np.full(3, 2.0))), *red], 2,
+         "po.npz' holds scattered 'points' and 'origin' (3,), 'spacing' (3,), which place a grid, not points"),
+        ("npz grid with an array it does not use", ["reduce", _write(tmp, "gm.npz", _npz(
+            values=grid, mask=np.ones(5, bool))), *red], 2, "gm.npz' holds 'mask' (5,), which a grid does not use"),
+        ("CSV with two columns named value", ["reduce", _write(tmp, "vv2.csv", _csv(
+            "x,y,z,value,value", p, lambda a, b, c: (a, b, c, -a, a))), *red], 2,
+         "vv2.csv' has 2 columns named 'value': rename all but one"),
+        ("CSV with two columns named x", ["reduce", _write(tmp, "xx.csv", _csv(
+            "x,y,z,x,value", p, lambda a, b, c: (7 * a, b, c, a, a))), *red], 2,
+         "xx.csv' has 2 columns named 'x': rename all but one"),
+        ("zarr file_index of a negative base", ["reduce", _write(tmp, "fb.zarr", _zarr(grid, {"file_index": {
+            "base": -5, "strides": [20, 5, 1]}})), *red], 2,
+         ("attribute 'file_index' {'base': -5, 'strides': [20, 5, 1]}",
+          "gives grid points negative indices (down to -5) for the shape (3, 4, 5)")),
+        ("zarr file_index of zero strides", ["reduce", _write(tmp, "fz.zarr", _zarr(grid, {"file_index": {
+            "base": 0, "strides": [0, 0, 0]}})), *red], 2,
+         "'file_index' {'base': 0, 'strides': [0, 0, 0]} has a zero stride along axis x"),
+        ("zarr file_index whose strides give two points one index", ["reduce", _write(tmp, "fc.zarr", _zarr(
+            grid, {"file_index": {"base": 0, "strides": [1, 3, 5]}})), *red], 2,
+         "{'base': 0, 'strides': [1, 3, 5]} gives grid points (0, 2, 0) and (1, 0, 1) the same index 6"),
+        ("zarr file_index beyond an int64", ["reduce", _write(tmp, "fo.zarr", _zarr(grid, {"file_index": {
+            "base": 0, "strides": [2**62, 5, 1]}})), *red], 2,
+         f"gives grid points indices beyond an int64 (up to {2**63 + 19}) for the shape (3, 4, 5)"),
         ("convert to a store named only .zarr", ["convert", _write(tmp, "g.npy", lambda q: np.save(q, np.zeros(
             (3, 3, 3)))), str(tmp / "out" / ".zarr")], 2, "must be named *.zarr (a name before .zarr)"),
         ("a folded tetrahedral mesh", ["reduce", _write(tmp, "fold.vtu", _folded_mesh), "--method", "decimate", *red],

@@ -3,6 +3,8 @@ meshes is the input's own point id (values[original_index] == value, coordinates
 
 from __future__ import annotations
 
+import re
+
 import numpy as np
 import pandas as pd
 import pytest
@@ -94,6 +96,44 @@ def test_npz_grid_round_trip_and_function_grid_ids(tmp_path):
     out = tmp_path / "out"
     assert main(["reduce", str(tmp_path / "g.npz"), "--fractions", "0.3", "--out", str(out)]) == 0
     _check_round_trip(out, data.points, data.values)
+
+
+def test_npz_other_value_arrays_are_alternatives_and_other_members_refused(tmp_path):
+    """Beside its layout (a grid: values, origin, spacing; points: points, values; either: name)
+    an .npz may hold other value arrays of the shape of ``values``, one of which ``array``
+    picks; any other member is refused in one line naming it."""
+    import zipfile
+
+    p = np.random.default_rng(4).random((30, 3))
+    np.savez(tmp_path / "alt.npz", points=p, values=p[:, 0], rho=p[:, 1], name=np.array("cloud"))
+    d = load(tmp_path / "alt.npz", array="rho")
+    assert np.array_equal(d.values, p[:, 1]) and np.array_equal(d.points, p) and d.name == "cloud"
+    grid = np.arange(60.0).reshape(3, 4, 5)
+    np.savez(tmp_path / "g.npz", values=grid, rho=-grid, origin=np.ones(3))
+    assert np.array_equal(load(tmp_path / "g.npz", array="rho").values, -grid.ravel())
+    np.savez(tmp_path / "twice.npz", points=p, values=p[:, 0])
+    with zipfile.ZipFile(tmp_path / "twice.npz", "a") as z, pytest.warns(UserWarning, match="Duplicate name"):
+        z.writestr("values.npy", _npy_bytes(p[:, 2]))
+    with zipfile.ZipFile(tmp_path / "g.npz", "a") as z:
+        z.writestr("notes.txt", "a note")
+    np.savez(tmp_path / "nm.npz", points=p, values=p[:, 0], name=np.arange(3))
+    refused = [("twice.npz", None, "holds two arrays named 'values': keep one"),
+               ("g.npz", None, "holds 'notes.txt', which is not a NumPy array (.npy)"),
+               ("nm.npz", None, "'name' must be one string, got int64 of shape (3,)"),
+               ("alt.npz", "points", "--array 'points' names a member of the layout"),
+               ("alt.npz", "name", "--array 'name' names a member of the layout")]
+    for name, array, message in refused:
+        with pytest.raises(trivsel.InputError, match=re.escape(message)) as info:
+            load(tmp_path / name, array=array)
+        assert "\n" not in str(info.value)
+
+
+def _npy_bytes(a):
+    import io
+
+    buf = io.BytesIO()
+    np.save(buf, a)
+    return buf.getvalue()
 
 
 def test_unsupported_suffix_is_refused(tmp_path, capsys):

@@ -112,6 +112,20 @@ def test_zarr_region_reads_touch_only_their_chunks(tmp_path, zarr_format):
         vol.read(((0, 5), (0, 6), (0, 7)))
 
 
+@pytest.mark.parametrize("shape, base, strides", [((3, 4, 5), 0, [20, 5, 1]), ((4, 4, 5), 3, [-1, 4, 16]),
+                                                  ((2, 2, 2), 0, [3, 4, 5])])
+def test_zarr_file_index_that_numbers_each_point_once_is_kept(tmp_path, shape, base, strides):
+    """A ``file_index`` that gives every grid point its own non-negative index is read as
+    written: C order, a flipped axis (a negative stride, as convert writes for a flipped NIfTI
+    axis) and strides that do not nest but still never collide on the grid."""
+    values = np.arange(float(np.prod(shape))).reshape(shape)
+    _zarr_array(tmp_path / "s.zarr", values, 3, {"file_index": {"base": base, "strides": strides}})
+    d = load(tmp_path / "s.zarr")
+    expected = base + d.ijk @ np.asarray(strides)
+    assert expected.min() >= 0 and len(set(expected.tolist())) == d.n_points
+    assert np.array_equal(d.file_ids(np.arange(d.n_points)), expected)
+
+
 def test_zarr_groups_need_the_array_name(tmp_path):
     rng = np.random.default_rng(3)
     _zarr_array(tmp_path / "g.zarr", rng.random((4, 4, 4)), 3, name="density")

@@ -11,11 +11,14 @@ Input formats (:func:`load`):
 * ``.vtu``, ``.vtp``, ``.vts``, ``.vtr`` and other legacy ``.vtk`` datasets without
   tetrahedra: scattered points with a point-data array;
 * ``.npz``: either ``points`` (N x 3) and ``values`` (N), or a 3-D array ``values``
-  (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``;
+  (indexed [i, j, k] = x, y, z) with optional ``origin`` and ``spacing``; either with an
+  optional ``name`` and other value arrays of the shape of ``values`` (``array`` picks one);
+  anything else in the archive is refused;
 * ``.npy`` (a 3-D array; origin 0, spacing 1) and Zarr stores (``.zarr``, geometry from the
   attributes ``origin`` and ``spacing``): read as ``trivsel blocks`` reads them
   (:func:`trivsel.io.regions.open_volume`), a grid;
-* ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``);
+* ``.csv``: columns ``x, y, z`` and a value column (``value`` or ``--array NAME``); a column
+  name that the header repeats is refused;
 * ``.nii`` and ``.nii.gz`` (NIfTI-1/-2, read with nibabel): a grid of the voxel values with
   ``scl_slope``/``scl_inter`` applied (float64), placed by the image's affine (the sform if
   its code is set, else the qform, else the voxel sizes ``pixdim`` with the origin at 0, the
@@ -102,6 +105,7 @@ def _read_csv(p, array):
         df = pd.read_csv(p)
     except Exception as exc:  # pandas raises many types
         raise InputError(f"cannot read CSV {str(p)!r}: {one_line(exc)}") from None
+    _check_csv_header(p, pd)
     cols = {c: _csv_column(df.columns, c, p) for c in ("x", "y", "z", "value")}
     missing = [c for c in ("x", "y", "z") if cols[c] is None]
     if missing:
@@ -117,6 +121,22 @@ def _read_csv(p, array):
     except ValueError as exc:
         raise InputError(f"non-numeric data in {str(p)!r}: {exc}") from None
     return scattered(pts, vals, name=p.stem)
+
+
+def _check_csv_header(p, pd):
+    """Refuse, in one line naming it, a column name that the header of CSV ``p`` repeats: pandas
+    would rename the second ``value`` to ``value.1`` and the reader would take the first without
+    a word.  The header is read again as a row of text (the same parser, so the same quoting and
+    skipped blank lines as the table's) because pandas' column names no longer show the repeat."""
+    try:
+        header = pd.read_csv(p, header=None, nrows=1, dtype=str, keep_default_na=False).iloc[0].tolist()
+    except Exception as exc:  # pandas raises many types
+        raise InputError(f"cannot read CSV {str(p)!r}: {one_line(exc)}") from None
+    seen = set()
+    for name in header:
+        if name in seen:
+            raise InputError(f"CSV {str(p)!r} has {header.count(name)} columns named {name!r}: rename all but one")
+        seen.add(name)
 
 
 def _csv_column(columns, name, p):
@@ -156,19 +176,25 @@ def _count_lines(p) -> int:
 
 
 def _npz_member_shapes(p):
-    """``{name: (shape, dtype)}`` of the arrays in an ``.npz`` from their headers (nothing read)."""
+    """``{name: (shape, dtype)}`` of the arrays in an ``.npz`` from their headers (nothing read).
+    A member that is not an ``.npy`` array, one whose header is damaged, or a name the archive
+    holds twice (which ``np.load`` would resolve to one of them) is refused with one line."""
     import zipfile
 
     out = {}
     with zipfile.ZipFile(p) as z:
         for info in z.infolist():
             if not info.filename.endswith(".npy"):
-                continue
+                raise InputError(f"{str(p)!r} holds {info.filename!r}, which is not a NumPy array (.npy): an .npz "
+                                 "holds only the arrays of its layout")
+            name = info.filename[:-4]
+            if name in out:
+                raise InputError(f"{str(p)!r} holds two arrays named {name!r}: keep one")
             with z.open(info) as fh:
                 try:
-                    out[info.filename[:-4]] = npy_header(fh)
-                except Exception:  # a damaged member: np.load says what is wrong
-                    continue
+                    out[name] = npy_header(fh)
+                except Exception as exc:  # numpy raises several types for a damaged header
+                    raise InputError(f"cannot read {str(p)!r}: array {name!r}: {one_line(exc)}") from None
     return out
 
 
@@ -181,44 +207,98 @@ def npy_header(fh):
     return tuple(shape), np.dtype(dtype)
 
 
+#: The members of an ``.npz`` besides its value arrays: what each layout may hold
+_NPZ_GRID_KEYS = ("origin", "spacing", "name")
+_NPZ_POINTS_KEYS = ("points", "name")
+
+
 def _read_npz(p, array):
     """The layout :func:`save_npz` writes: a 3-D ``values`` grid (indexed [i, j, k] = x, y, z)
-    with optional ``origin`` and ``spacing``, or ``points`` (N x 3) and 1-D ``values``."""
+    with optional ``origin`` and ``spacing``, or ``points`` (N x 3) and 1-D ``values``; either
+    with an optional ``name`` (a string) and other value arrays of the same shape as
+    ``values``, one of which ``array`` picks.  Anything else in the archive is refused
+    (:func:`_npz_layout`)."""
     import zipfile
 
     if not zipfile.is_zipfile(p):
         raise InputError(f"cannot read {str(p)!r}: not a NumPy .npz archive (a zip of .npy arrays)")
     try:
         members = _npz_member_shapes(p)
+    except InputError:
+        raise
     except Exception as exc:  # a damaged archive
         raise InputError(f"cannot read {str(p)!r}: {one_line(exc)}") from None
     key = array or "values"
-    if key in members:  # the memory of the arrays and of the grid or points built from them, before reading
-        count = float(np.prod(members[key][0]))
-        stored = sum(float(np.prod(shape)) * dt.itemsize for name, (shape, dt) in members.items()
-                     if name in (key, "points"))
-        check_memory(stored + GRID_BYTES_PER_POINT * count,
-                             f"reading {str(p)!r} ({key!r} of shape {members[key][0]})")
+    if key in _NPZ_GRID_KEYS + _NPZ_POINTS_KEYS:
+        raise InputError(f"--array {key!r} names a member of the layout of {str(p)!r}, not a value array")
+    if key not in members:
+        raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(members)}")
+    shape = _npz_layout(p, members, key)
+    # the memory of the arrays and of the grid or points built from them, before reading
+    stored = sum(float(np.prod(s)) * dt.itemsize for name, (s, dt) in members.items() if name in (key, "points"))
+    check_memory(stored + GRID_BYTES_PER_POINT * float(np.prod(shape)),
+                 f"reading {str(p)!r} ({key!r} of shape {shape})")
     try:
         with np.load(p) as z:  # allow_pickle=False: object arrays are refused, never unpickled
-            key = array or "values"
-            if key not in z.files:
-                raise InputError(f"{str(p)!r} has no array {key!r}; available: {', '.join(z.files)}")
             arrays = {k: np.asarray(z[k]) for k in (key, "points", "origin", "spacing", "name") if k in z.files}
-    except InputError:
-        raise
     except Exception as exc:  # damaged members, object arrays
         raise InputError(f"cannot read {str(p)!r}: {one_line(exc)}") from None
     v = arrays[key]
-    name = str(arrays["name"]) if "name" in arrays else p.stem
+    name = _npz_name(p, arrays["name"]) if "name" in arrays else p.stem
     if v.ndim == 3:
         return grid_from_array(v, arrays.get("origin", (0, 0, 0)), arrays.get("spacing", (1, 1, 1)), name=name)
-    if v.ndim != 1:
-        raise InputError(f"{str(p)!r}: {key!r} has shape {v.shape}: need a 3-D grid, or 1-D values beside a "
-                         "'points' array (N x 3)")
-    if "points" not in arrays:
-        raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
     return scattered(arrays["points"], v, name=name)
+
+
+def _npz_layout(p, members, key):
+    """Check that the members of an ``.npz`` (``{name: (shape, dtype)}``, from the headers) are
+    one layout around the value array ``key``: a grid (``key`` 3-D; ``origin``, ``spacing``) or
+    scattered points (``key`` 1-D beside ``points``), each with an optional ``name`` and other
+    value arrays of ``key``'s shape.  Every other member is refused in one line naming it, so
+    that nothing in the file is silently ignored: ``points`` beside a grid (which layout is
+    meant?), ``origin`` or ``spacing`` beside points (a grid's geometry, which points do not
+    have), and any array neither layout has.
+
+    Returns
+    -------
+    tuple
+        The shape of ``key``.
+    """
+
+    def listed(names):
+        return ", ".join(f"{n!r} {members[n][0]}" for n in names)
+
+    shape = members[key][0]
+    if len(shape) == 3:
+        if "points" in members:
+            raise InputError(f"{str(p)!r} is ambiguous: it holds a 3-D grid {key!r} {shape} and scattered "
+                             f"'points' {members['points'][0]}; keep one layout (a grid: values, origin, spacing; "
+                             "scattered: points, values)")
+        layout, own, what = "a grid", _NPZ_GRID_KEYS, "origin, spacing, name"
+    elif len(shape) == 1:
+        if "points" not in members:
+            raise InputError(f"{str(p)!r}: a 1-D {key!r} needs a 'points' array (N x 3) beside it")
+        geometry = [k for k in ("origin", "spacing") if k in members]
+        if geometry:
+            raise InputError(f"{str(p)!r} holds scattered 'points' and {listed(geometry)}, which place a grid, not "
+                             "points: remove them, or store the grid as a 3-D 'values'")
+        layout, own, what = "scattered points", _NPZ_POINTS_KEYS, "points, name"
+    else:
+        raise InputError(f"{str(p)!r}: {key!r} has shape {shape}: need a 3-D grid, or 1-D values beside a "
+                         "'points' array (N x 3)")
+    # other value arrays (of key's shape) are alternatives that --array picks
+    unused = [n for n, (s, _) in members.items() if n != key and n not in own and s != shape]
+    if unused:
+        raise InputError(f"{str(p)!r} holds {listed(unused)}, which {layout} does not use: an .npz of {layout} "
+                         f"holds {key!r} {shape}, {what} and other value arrays of shape {shape}")
+    return shape
+
+
+def _npz_name(p, a):
+    """The data's name from an ``.npz`` member ``name``: one string (as :func:`save_npz` writes it)."""
+    if a.ndim != 0 or a.dtype.kind != "U":
+        raise InputError(f"{str(p)!r}: 'name' must be one string, got {a.dtype} of shape {a.shape}")
+    return str(a)
 
 
 #: VTK's reader of each VTK suffix: (module of ``vtkmodules``, class)

@@ -12,7 +12,9 @@ Sources and how they are read:
 
 * a Zarr store (``*.zarr``, a directory; format v3 as :func:`convert` writes it, or v2):
   the array named by ``array`` or the store's only array, indexed ``[i, j, k]`` = x, y, z;
-  geometry from its attributes ``origin`` and ``spacing`` (default 0 and 1).  By region:
+  geometry from its attributes ``origin`` and ``spacing`` (default 0 and 1), the input's point
+  ids from ``file_index`` (as :func:`convert` writes it; one that does not give each point its
+  own non-negative index is refused).  By region:
   a read loads only the chunks it touches;
 * ``.npy``: a 3-D array indexed ``[i, j, k]``, memory-mapped; origin 0, spacing 1.  By region;
 * NRRD with raw encoding (``.nrrd`` with the data after the header, or a ``.nhdr`` header and
@@ -381,18 +383,96 @@ def _zarr_volume(p, array, volume):
     _check_voxel_dtype(p, arr.dtype)
     attrs = dict(arr.attrs)
     ids = attrs.get("file_index")
-    file_ids = None
-    if ids is not None:
-        try:
-            file_ids = (int(ids["base"]), [int(s) for s in ids["strides"]])
-            assert len(file_ids[1]) == 3
-        except (KeyError, TypeError, ValueError, AssertionError):
-            raise InputError(f"{str(p)!r}: attribute 'file_index' must be {{'base': int, 'strides': [3 ints]}}, "
-                             f"got {shown(ids)}") from None
+    file_ids = None if ids is None else _file_index(p, ids, shape)
     meta = attrs.get("meta") if isinstance(attrs.get("meta"), dict) else {}
     return Volume(shape=shape, origin=_attribute_vector(p, attrs, "origin", [0.0] * 3),
                   spacing=_attribute_vector(p, attrs, "spacing", [1.0] * 3), name=attrs.get("name", p.stem),
                   block=lambda s: arr[s], dtype=arr.dtype, source=str(p), file_ids=file_ids, meta=meta)
+
+
+def _file_index(p, ids, shape):
+    """A store's ``file_index`` attribute as ``(base, strides)``: grid point ``ijk`` was point
+    ``base + ijk @ strides`` of the original file.  What :func:`convert` writes (a C- or
+    Fortran-order numbering of the grid, with flipped axes as negative strides) passes; refused
+    in one line naming the value: anything but an integer ``base`` and 3 integer ``strides``, and
+    a numbering that does not give each grid point its own non-negative int64 index (a negative
+    index, a zero stride, two points on one index, an index beyond an int64).
+
+    Parameters
+    ----------
+    p : pathlib.Path
+        The store (for the messages).
+    ids : object
+        The attribute's value.
+    shape : tuple of 3 ints
+        The store's grid shape.
+
+    Returns
+    -------
+    tuple
+        ``(base, strides)``: an int and a list of 3 ints.
+    """
+
+    def integer(v):
+        return isinstance(v, numbers.Integral) and not isinstance(v, bool)
+
+    def refuse(why):
+        return InputError(f"{str(p)!r}: attribute 'file_index' {shown(ids)} {why}")
+
+    try:
+        base, strides = ids["base"], list(ids["strides"])
+    except (KeyError, TypeError, IndexError):
+        base, strides = None, []
+    if not integer(base) or len(strides) != 3 or not all(map(integer, strides)):
+        raise refuse("must be {'base': int, 'strides': [3 ints]}")
+    base, strides = int(base), [int(s) for s in strides]
+    if 0 in strides:
+        axis = "xyz"[strides.index(0)]
+        raise refuse(f"has a zero stride along axis {axis}: the points along it would share one index")
+    # Python integers: the extreme indices exactly, however large base and strides are
+    low = base + sum(s * (n - 1) for s, n in zip(strides, shape) if s < 0)
+    high = base + sum(s * (n - 1) for s, n in zip(strides, shape) if s > 0)
+    if low < 0:
+        raise refuse(f"gives grid points negative indices (down to {low}) for the shape {tuple(shape)}")
+    if high > np.iinfo(np.int64).max:
+        raise refuse(f"gives grid points indices beyond an int64 (up to {high}) for the shape {tuple(shape)}")
+    clash = _index_collision(strides, shape)
+    if clash is not None:
+        a, b = clash
+        raise refuse(f"gives grid points {a} and {b} the same index {base + sum(i * s for i, s in zip(a, strides))}"
+                     f" for the shape {tuple(shape)}")
+    return base, strides
+
+
+def _index_collision(strides, shape):
+    """Two grid points of ``shape`` that ``ijk @ strides`` (non-zero integer strides whose
+    indices :func:`_file_index` found within an int64) maps onto the same index, or None if the
+    map is one-to-one.
+
+    A C- or Fortran-order numbering, up to flips and a permutation of the axes, nests its axes
+    (each stride's magnitude exceeds the span of the smaller ones) and is one-to-one at once.
+    Otherwise two points collide where a difference ``d`` (``|d[x]| < shape[x]``, not all 0) has
+    ``d @ strides == 0``: ``d`` is searched over the two shortest axes, the third solved for."""
+    span = 0
+    for x in sorted(range(3), key=lambda ax: abs(strides[ax])):
+        if abs(strides[x]) <= span:
+            break
+        span += abs(strides[x]) * (shape[x] - 1)
+    else:
+        return None
+    a, b, c = sorted(range(3), key=lambda ax: shape[ax])
+    # |d @ strides| is at most the indices' range, which fits an int64
+    db = np.arange(-(shape[b] - 1), shape[b], dtype=np.int64)
+    for da in range(shape[a]):  # d and -d give the same pair: d[a] >= 0, and d[b] > 0 where d[a] == 0
+        rest = da * np.int64(strides[a]) + db * np.int64(strides[b])
+        hit = (rest % strides[c] == 0) & (np.abs(rest // strides[c]) < shape[c]) & ((da > 0) | (db > 0))
+        if hit.any():
+            i = int(np.flatnonzero(hit)[0])
+            d = [0, 0, 0]
+            d[a], d[b], d[c] = da, int(db[i]), -int(rest[i] // strides[c])
+            first = tuple(max(0, -v) for v in d)
+            return first, tuple(f + v for f, v in zip(first, d))
+    return None
 
 
 def _npy_volume(p, array, volume):
