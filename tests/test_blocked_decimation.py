@@ -383,7 +383,7 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     assert stopped and int(stopped.group(1)) > 300, err
     assert f"{int(stopped.group(1))}" in (tmp_path / "o8" / "errors.csv").read_text()
 
-    # 64.5 M points need 60 GiB in one piece; with 16 GiB available, blocks of 96 fit, and every job
+    # 64.5 M points need 30 GiB in one piece; with 16 GiB available, blocks of 96 fit, and every job
     # of decimate's in blocks of 48 (the step and last jobs hold the whole grid's arrays)
     monkeypatch.setattr(resources, "available_bytes", lambda: 16 * 2**30)
     argv = ["reduce", "--function", "4", "--n", "400", "--method", "decimate", "--fractions", "0.05", "--out",

@@ -30,14 +30,19 @@ DEFAULTS = {"criterion": "sse"}
 PRESCRIBED_BOUNDARY = False
 #: Its own stages in blocks (``trivsel blocks --method decimate``), which ``--block`` runs in one process.
 BLOCK_STAGES = "trivsel.blocks.decimate"
-#: Peak bytes per point of a decimation (the Kuhn split's 6 tets per point with their
-#: corner lists, the buckets and the queue), and more with fitted values (the points'
-#: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).
-BYTES_PER_POINT = 1000
+#: Peak bytes per point of a grid's decimation in one piece (the Kuhn split's 6 tets per point
+#: with their corner lists, the buckets and the queue), and more with fitted values (the points'
+#: weights and the normal equations' assembly: about 75 measured on the 129^3 T1 crop).  Whole
+#: processes with fitted values, the interpreter included: 1.27 GB for the 129^3 T1 crop (2.1 M
+#: points, 590 bytes a point), 4.21 GB for the whole 1 mm T1 (8.7 M, 485 bytes a point; docs/notes).
+BYTES_PER_POINT = 500
 FIT_BYTES_PER_POINT = 150
+#: Peak bytes per point of one block's or region's decimation with ``block`` (a region's mesh
+#: state holds its points and tetrahedra; the jobs' own figures are in trivsel.blocks.decimate).
+PIECE_BYTES_PER_POINT = 1000
 #: Peak bytes per tetrahedron of a decimation that starts from a tetrahedral mesh read from a
 #: file (its reading, checks and mesh state; about 6.7 tetrahedra a point): 1.44 GB for 1 M
-#: points and 6.75 M tetrahedra with fitted values, 0.58 GB for 0.3 M and 2.0 M, whole processes
+#: points and 6.75 M tetrahedra with fitted values, 0.54 GB for 0.3 M and 2.0 M, whole processes
 #: (docs/notes).  Such meshes have more tetrahedra a point than a grid's Kuhn split, and each
 #: costs more than a grid's.
 MESH_BYTES_PER_TET = 200
@@ -66,7 +71,7 @@ def memory(data, options):
     fit = FIT_BYTES_PER_POINT if "fit" in options.values else 0
     if options.block and data.is_grid:  # one block or region at a time, and the whole as owners
         piece = min(float(2 * options.block + 1) ** 3, float(N))
-        return [(BLOCKED_BYTES_PER_POINT * float(N) + BYTES_PER_POINT * piece + fit * float(N),
+        return [(BLOCKED_BYTES_PER_POINT * float(N) + PIECE_BYTES_PER_POINT * piece + fit * float(N),
                  f"decimating {N} points in blocks of {options.block}")]
     if getattr(data, "tets", None) is not None:  # a mesh's own tetrahedra set its size
         M = len(data.tets)
