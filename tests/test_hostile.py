@@ -1113,3 +1113,88 @@ def test_a_closed_stdout_ends_the_command_quietly_and_keeps_its_files(tmp_path, 
         assert {x.name for x in (tmp_path / "out").iterdir()} >= {"errors.csv", "mesh_0.2.vtu", "mesh_0.5.vtu",
                                                                    "result.json"}
         assert "0.2" in (tmp_path / "out" / "errors.csv").read_text()
+
+
+# ----------------------------------------------------------------------------- the Python API
+
+def _api_cases():
+    """(name, call on a 6^3 grid ``v``, scattered points ``p``/``f`` and a result ``r``, the
+    exception and a phrase of its one-line message)."""
+    import numpy.ma as ma
+
+    import trivsel
+
+    red = trivsel.reduce
+    return [
+        ("count NaN", lambda v, p, f, r, d: red(v, count=float("nan")), "count must be an integer in [1, 216], got nan"),
+        ("count inf", lambda v, p, f, r, d: red(v, count=float("inf")), "count must be an integer in [1, 216], got inf"),
+        ("count a list", lambda v, p, f, r, d: red(v, count=[30]), "count must be an integer in [1, 216], got [30]"),
+        ("count complex", lambda v, p, f, r, d: red(v, count=30 + 0j), "count must be an integer in [1, 216]"),
+        ("tol_rms a string", lambda v, p, f, r, d: red(v, tol_rms="0.1"), "tol_rms must be a finite number >= 0, got '0.1'"),
+        ("tol_inf an array", lambda v, p, f, r, d: red(v, tol_inf=np.array([0.1, 0.2])),
+         "tol_inf must be a finite number >= 0, got [0.1, 0.2]"),
+        ("tol_rms a bool", lambda v, p, f, r, d: red(v, tol_rms=True), "tol_rms must be a finite number >= 0, got True"),
+        ("fractions a bool", lambda v, p, f, r, d: red(v, fractions=True), "fraction True is not a number"),
+        ("fractions a dict", lambda v, p, f, r, d: red(v, fractions={0.5: "x"}),
+         "fractions must be a number or a sequence of numbers, got {0.5: 'x'}"),
+        ("fractions a string", lambda v, p, f, r, d: red(v, fractions="0.5"),
+         "fractions must be a number or a sequence of numbers, got '0.5'"),
+        ("an unknown keyword", lambda v, p, f, r, d: red(v, count=30, frobnicate=1),
+         "reduce() got an unexpected keyword argument 'frobnicate'"),
+        ("progress not callable", lambda v, p, f, r, d: red(v, count=30, progress="x"),
+         "progress must be a function (or None), got 'x'"),
+        ("check not callable", lambda v, p, f, r, d: red(v, count=30, check=3), "check must be a function (or None), got 3"),
+        ("n with an array", lambda v, p, f, r, d: red(v, count=30, n=8),
+         "n= applies to a Table-1 function, not to input data (got n=8)"),
+        ("a masked grid", lambda v, p, f, r, d: red(ma.masked_array(v, mask=v > 0.9), count=30), "masked value(s)"),
+        ("masked scattered values", lambda v, p, f, r, d: trivsel.scattered(p, ma.masked_array(f, mask=f > 0.5)),
+         "masked value(s)"),
+        ("load of a number", lambda v, p, f, r, d: trivsel.load(123),
+         "the input file must be a path (a str or a pathlib.Path), got 123"),
+        ("snapshot of a string", lambda v, p, f, r, d: r.snapshot("abc"), "fraction must be a number, got 'abc'"),
+        ("write_outputs into None", lambda v, p, f, r, d: trivsel.write_outputs(r, None),
+         "the output folder must be a path (a str or a pathlib.Path), got None"),
+        ("write_outputs of no result", lambda v, p, f, r, d: trivsel.write_outputs("x", d),
+         "write_outputs takes the result of trivsel.reduce, got 'x'"),
+        ("write_outputs with extra not JSON", lambda v, p, f, r, d: trivsel.write_outputs(r, d, extra={"a": object()}),
+         "extra must hold JSON values only"),
+    ]
+
+
+@pytest.mark.parametrize("name", [c[0] for c in _api_cases()])
+def test_the_python_api_refuses_bad_arguments_in_one_line(tmp_path, name):
+    """A notebook's wrong argument: one line naming it and its value, before any work; nothing
+    written, and the caller's arrays as they were."""
+    import trivsel
+
+    _, call, fragment = {c[0]: c for c in _api_cases()}[name]
+    v = np.random.default_rng(0).random((6, 6, 6))
+    p, f = _cloud(20)
+    r = trivsel.reduce(np.random.default_rng(1).random((4, 4, 4)), count=20, method="greedy")
+    v0, p0, f0 = v.copy(), p.copy(), f.copy()
+    with pytest.raises((trivsel.InputError, TypeError)) as info:
+        call(v, p, f, r, tmp_path / "out")
+    message = str(info.value)
+    assert "\n" not in message and fragment in message, message
+    assert not (tmp_path / "out").exists()
+    assert np.array_equal(v, v0) and np.array_equal(p, p0) and np.array_equal(f, f0)
+
+
+def test_numpy_bools_and_numbers_are_taken_as_python_ones():
+    """A NumPy bool is a bool (it was refused as 'got True'), NumPy numbers are numbers."""
+    import trivsel
+
+    v = np.random.default_rng(0).random((6, 6, 6))
+    r = trivsel.reduce(v, count=np.int64(30), method="paper", final_pass=np.bool_(True))
+    assert r.options["final_pass"] is True and r.snapshots[-1].n_selected == 30
+    r = trivsel.reduce(v, fractions=np.array([0.5, 0.2]), method="greedy", tol_inf=np.float32(0.0))
+    assert [s.n_selected for s in r.snapshots] == [43, 108]
+
+
+def test_a_blocks_config_that_names_a_setting_twice_is_refused(tmp_path):
+    cfg = tmp_path / "c.yaml"
+    cfg.write_text("block: 8\ntol_inf: 0.1\nblock: 4\n")
+    code, err, _ = _run(["blocks", "--function", "4", "--n", "8", "--config", str(cfg), "--out", str(tmp_path / "out")])
+    assert code == 2 and _lines(err) == [f"trivsel: error: cannot read config {cfg}: the setting 'block' is given "
+                                         "twice (line 3)"], err
+    assert not (tmp_path / "out").exists()

@@ -578,9 +578,23 @@ def _cmd_blocks(a, snakemake_args):
 def _read_yaml(path):
     import yaml
 
+    class UniqueKeys(yaml.SafeLoader):
+        """YAML that names a setting twice is refused: a loader would keep the last silently."""
+
+        def construct_mapping(self, node, deep=False):
+            seen = set()
+            for key_node, _ in node.value:
+                key = self.construct_object(key_node, deep=deep)
+                if key in seen:
+                    raise yaml.constructor.ConstructorError(
+                        None, None, f"the setting {key!r} is given twice (line {key_node.start_mark.line + 1})",
+                        key_node.start_mark)
+                seen.add(key)
+            return super().construct_mapping(node, deep=deep)
+
     try:
         with open(path) as fh:
-            d = yaml.safe_load(fh)
+            d = yaml.load(fh, Loader=UniqueKeys)  # noqa: S506 - a SafeLoader
     except (OSError, yaml.YAMLError) as exc:
         raise InputError(f"cannot read config {path}: {one_line(exc, first=True)}") from None
     if not isinstance(d, dict):

@@ -181,6 +181,9 @@ def _real_array(a, name, place=None):
     """``a`` as float64; complex, boolean, text or object data are refused instead of
     being cast (a cast would drop imaginary parts or reinterpret the data), and so are
     integers that float64 cannot hold exactly (:func:`check_float64_exact`)."""
+    if isinstance(a, np.ma.MaskedArray) and np.ma.count_masked(a):  # asarray would take the masked values
+        raise InputError(f"{name} has {np.ma.count_masked(a)} masked value(s): fill them (or drop those points) "
+                         "first, since every value is data to trivsel")
     arr = np.asarray(a)
     if arr.dtype.kind not in "iuf":
         raise InputError(f"{name} must be real numbers, got an array of dtype {arr.dtype}")

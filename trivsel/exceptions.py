@@ -30,6 +30,44 @@ def check_threads(threads):
     return int(threads)
 
 
+def _real(value) -> bool:
+    """Whether ``value`` is one real number: an int, a float or a NumPy real scalar, not a bool,
+    a string, a complex number, a sequence or an array."""
+    import numpy as np
+
+    return isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_))
+
+
+def check_tolerance(name, tol):
+    """``tol`` as a float: None, or one finite real number >= 0; one-line InputError otherwise."""
+    import math
+
+    if tol is None:
+        return None
+    if not _real(tol) or not math.isfinite(tol) or tol < 0:
+        raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
+    return float(tol)
+
+
+def check_count(count, n_points):
+    """``count`` as an int: None, or one whole number from 1 to ``n_points``; one-line
+    InputError otherwise (a float that is whole, ``30.0``, is taken)."""
+    import math
+
+    if count is None:
+        return None
+    if not _real(count) or not math.isfinite(count) or int(count) != count or not 1 <= count <= n_points:
+        raise InputError(f"count must be an integer in [1, {n_points}], got {shown(count)}")
+    return int(count)
+
+
+def check_callable(name, fn):
+    """``fn``: None or a callable; one-line InputError otherwise."""
+    if fn is not None and not callable(fn):
+        raise InputError(f"{name} must be a function (or None), got {shown(fn)}")
+    return fn
+
+
 def one_line(exc, *, first: bool = False) -> str:
     """An exception's message on one line, for an :class:`InputError` that quotes it.
 

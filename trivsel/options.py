@@ -320,8 +320,10 @@ def _check(f, v):
         _check_choice(name, v, _choices(f))
         return v
     if kind == "bool":
-        if isinstance(v, bool) or (isinstance(v, numbers.Integral) and v in (0, 1)):
-            return bool(v)
+        import numpy as np
+
+        if isinstance(v, (bool, np.bool_)) or (isinstance(v, numbers.Integral) and v in (0, 1)):
+            return bool(v)  # a NumPy bool as a bool; 0 and 1 as a configuration file may write them
         raise InputError(f"{name} must be true or false, got {shown(v)}")
     if kind == "int":
         if isinstance(v, bool) or not isinstance(v, numbers.Integral):

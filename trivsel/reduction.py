@@ -18,7 +18,7 @@ from dataclasses import replace
 import numpy as np
 
 from .data import PointData, sample_grid
-from .exceptions import InputError, check_threads, shown
+from .exceptions import InputError, check_callable, check_count, check_threads, check_tolerance, shown
 from .functions import resolve_function
 from .methods import get_method
 from .methods.protocol import Problem
@@ -50,8 +50,9 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
         before a removal would raise the error above it (or when no removal is
         left).  A fraction or count that the run does not reach first is noted in
         :attr:`ReductionResult.notes` and logged as a warning.
-    n : int
-        Grid intervals per axis when ``data`` is a Table-1 function (the paper: 16).
+    n : int, optional
+        Grid intervals per axis when ``data`` is a Table-1 function (default 16, the
+        paper's); refused with other data.
     array : str, optional
         The point-data array of a pyvista dataset or file (default: a dataset's
         active scalars, or the only array).
@@ -82,10 +83,14 @@ _STOP_PARAMS = """    data : PointData, numpy array, pyvista dataset, nibabel im
         from the full grid, and calls first with the full grid's count)."""
 
 
-def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16, array=None, volume=None,
+def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=None, array=None, volume=None,
            boundary=None, options=None, threads=1, check=None, progress=None, **option_overrides):
     t_start = time.perf_counter()
     is_function = isinstance(data, (str, numbers.Integral)) and not isinstance(data, bool)
+    known = {f.name for f in option_fields()}
+    for name in option_overrides:
+        if name not in known:
+            raise TypeError(f"reduce() got an unexpected keyword argument {name!r}")
     if option_overrides.get("method", AUTO if options is None else None) == AUTO:
         # a Table-1 function, by number or name or sampled (sample_grid), is the paper's data
         sampled = isinstance(data, PointData) and "function" in data.meta
@@ -98,8 +103,10 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
         if array is not None or volume is not None:
             raise InputError(f"{'array' if array is not None else 'volume'}= applies to input data, "
                              "not to a Table-1 function")
-        data = sample_grid(resolve_function(data), n)
+        data = sample_grid(resolve_function(data), 16 if n is None else n)
     else:
+        if n is not None:
+            raise InputError(f"n= applies to a Table-1 function, not to input data (got n={shown(n)})")
         from .io import from_object
 
         data = from_object(data, array=array, volume=volume)
@@ -107,11 +114,10 @@ def reduce(data, *, fractions=None, count=None, tol_rms=None, tol_inf=None, n=16
     threads = check_threads(threads)
     fractions = validate_fractions(fractions)
     N = data.n_points
-    for name, tol in (("tol_rms", tol_rms), ("tol_inf", tol_inf)):
-        if tol is not None and not (np.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
-    if count is not None and (isinstance(count, bool) or int(count) != count or not 1 <= count <= N):
-        raise InputError(f"count must be an integer in [1, {N}], got {shown(count)}")
+    tol_rms, tol_inf = check_tolerance("tol_rms", tol_rms), check_tolerance("tol_inf", tol_inf)
+    count = check_count(count, N)
+    check_callable("check", check)
+    check_callable("progress", progress)
     if not fractions and count is None and tol_rms is None and tol_inf is None:
         raise InputError("give fractions, a count, or an error tolerance (tol_rms / tol_inf) to stop at")
     stop = dict(fractions=fractions, count=count, tol_rms=tol_rms, tol_inf=tol_inf)

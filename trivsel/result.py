@@ -11,6 +11,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .exceptions import InputError, shown
+
 __all__ = ["Snapshot", "ReductionResult"]
 
 
@@ -78,6 +80,10 @@ class ReductionResult:
 
     def snapshot(self, fraction):
         """The snapshot for ``fraction`` (nearest match)."""
+        import numbers
+
+        if isinstance(fraction, (bool, np.bool_)) or not isinstance(fraction, numbers.Real) or fraction != fraction:
+            raise InputError(f"fraction must be a number, got {shown(fraction)}")
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 
     def to_pyvista(self, fraction=None):

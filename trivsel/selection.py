@@ -18,6 +18,8 @@
 
 from __future__ import annotations
 
+import numbers
+from collections.abc import Mapping
 from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
@@ -33,16 +35,17 @@ def validate_fractions(fractions):
     """Check every fraction is a number in (0, 1]; return them as floats."""
     if fractions is None:
         return []
+    if isinstance(fractions, (str, bytes, Mapping)):  # a string's characters or a dict's keys are no fractions
+        raise InputError(f"fractions must be a number or a sequence of numbers, got {shown(fractions)}")
     try:
         seq = list(fractions)
     except TypeError:
         seq = [fractions]
     out = []
     for f in seq:
-        try:
-            v = float(f)
-        except (TypeError, ValueError):
-            raise InputError(f"fraction {shown(f)} is not a number") from None
+        if isinstance(f, (bool, np.bool_)) or not isinstance(f, numbers.Real):
+            raise InputError(f"fraction {shown(f)} is not a number")
+        v = float(f)
         if not (0.0 < v <= 1.0) or v != v:
             raise InputError(f"fraction {shown(f)} is outside (0, 1]")
         out.append(v)

@@ -62,6 +62,7 @@ import numbers
 import os
 import shutil
 import tempfile
+from collections.abc import Mapping
 from pathlib import Path
 
 import numpy as np
@@ -845,6 +846,7 @@ def load(path, array: str | None = None, *, volume: int | None = None) -> PointD
         One line naming the file and the problem: a missing or unreadable file, an
         unsupported suffix, or data the reader refuses.
     """
+    check_path("the input file", path)
     p = Path(path)
     if not p.exists():
         raise InputError(f"input file {str(p)!r} does not exist")
@@ -1127,6 +1129,12 @@ def import_vtk_writer():
         import vtkmodules.vtkIOXML  # noqa: F401
 
 
+def check_path(what, path):
+    """One-line InputError unless ``path`` is a ``str`` or an :class:`os.PathLike`."""
+    if not isinstance(path, (str, os.PathLike)):
+        raise InputError(f"{what} must be a path (a str or a pathlib.Path), got {shown(path)}")
+
+
 def check_output_dir(out_dir, inputs=(), files=()):
     """Check an output folder before any work: it is named, it is not a file, it can be
     created and written, it does not contain an input file (whose name a result could take),
@@ -1136,6 +1144,7 @@ def check_output_dir(out_dir, inputs=(), files=()):
     Raises :class:`~trivsel.exceptions.InputError` with one line naming the problem.
     Returns the folder as a resolved :class:`~pathlib.Path`.
     """
+    check_path("the output folder", out_dir)
     if not str(out_dir).strip():
         raise InputError(f"--out {str(out_dir)!r} is empty: name the output folder")
     out = Path(out_dir).expanduser()
@@ -1340,6 +1349,15 @@ def write_outputs(result, out_dir, extra: dict | None = None, inputs=()):
       raises :class:`~trivsel.exceptions.InputError` with one line, and a folder this
       run created is removed again.
     """
+    if not callable(getattr(result, "error_rows", None)) or not hasattr(result, "snapshots"):  # a ReductionResult
+        raise InputError(f"write_outputs takes the result of trivsel.reduce, got {shown(result)}")
+    if extra is not None and not isinstance(extra, Mapping):
+        raise InputError(f"extra must be a mapping of names to JSON values (or None), got {shown(extra)}")
+    if extra:
+        try:
+            json.dumps(dict(extra), allow_nan=True)
+        except (TypeError, ValueError) as exc:
+            raise InputError(f"extra must hold JSON values only: {one_line(exc)}") from None
     out = check_output_dir(out_dir, inputs)
     import_vtk_writer()
     created = not out.exists()
