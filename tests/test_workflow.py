@@ -488,6 +488,59 @@ def test_bad_config_fails_before_any_job(tmp_path, overrides, messages):
     assert not (tmp_path / "results").exists()
 
 
+@pytest.mark.parametrize("overrides,message", [
+    # JSON Schema lets NaN through any bound (every comparison with NaN is false) and inf through
+    # a key bounded on one side only: common.smk checks every number finite
+    ({"reduce": {"fractions": [0.5, math.nan]}}, "config reduce: fractions: nan must be a finite number in (0, 1]"),
+    ({"report": {"tolerance": math.nan}}, "config report: tolerance: nan must be a finite number in (0, 1]"),
+    ({"golden": {"rtol": math.inf}}, "config golden: rtol: inf must be a finite number >= 0"),
+    ({"golden": {"atol": math.nan}}, "config golden: atol: nan must be a finite number >= 0"),
+    # a stage that is off is checked too
+    ({"methods": {"fractions": [math.nan]}}, "config methods: fractions: nan must be a finite number in (0, 1]"),
+    ({"scale": {"fraction": math.nan}}, "config scale: fraction: nan must be a finite number in (0, 1)"),
+    ({"realdata": {"curve_fractions": [0.1, math.nan]}},
+     "config realdata: curve_fractions: nan must be a finite number in (0, 1)"),
+    # ablation variant names (trivsel.study.ablation.parse_variant), whether the stage is on or not
+    ({"ablation": {"activate": True, "variants": ["bogus"]}},
+     "config ablation: variants: bad variant part 'bogus' in 'bogus': expected choice=value"),
+    ({"ablation": {"activate": True, "variants": ["criterion=bogus"]}},
+     "config ablation: variants: unknown value 'bogus' for 'criterion' in 'criterion=bogus'"),
+    ({"ablation": {"variants": ["singles", "criterion=bogus"]}},
+     "config ablation: variants: unknown value 'bogus' for 'criterion' in 'criterion=bogus'"),
+    # the golden table must be an existing file
+    ({"golden": {"table": "no/such/golden.csv"}},
+     "config golden: table: 'no/such/golden.csv' is not an existing file"),
+])
+def test_bad_config_value_stops_the_load_in_one_line(tmp_path, overrides, message):
+    """A value the schema lets through stops `snakemake -n` while the workflow loads, before
+    the DAG is built, with the workflow's one-line message naming the key and the value (a
+    WorkflowError, as the other load-time checks), not an exception from the code using it."""
+    write_config(tmp_path, overrides)
+    r = run_smk(tmp_path, "--dry-run", timeout=120)
+    assert r.returncode != 0
+    assert "WorkflowError" in r.output and message in r.output, r.output
+    assert "ValueError" not in r.output and "Building DAG of jobs" not in r.output, r.output
+    assert not (tmp_path / "results").exists()
+
+
+def test_golden_table_must_be_a_file(tmp_path):
+    """A folder as the golden table is refused when the workflow loads; the reproduction's
+    relative golden path (.ci/run, --config) plans the golden_check job."""
+    write_config(tmp_path, {"data": {"functions": [1], "n": [4]}})
+    (tmp_path / "golden").mkdir()
+    r = run_smk(tmp_path, "--dry-run", "--config", "golden={table: golden}", timeout=120)
+    assert r.returncode != 0
+    assert "config golden: table: 'golden' is a folder" in r.output, r.output
+    assert "Building DAG of jobs" not in r.output, r.output
+    (tmp_path / "tests" / "golden").mkdir(parents=True)
+    golden = REPO / "tests" / "golden" / "table1.csv"
+    (tmp_path / "tests" / "golden" / "table1.csv").write_bytes(golden.read_bytes())
+    r = run_smk(tmp_path, "--dry-run", "--quiet", "rules", "--config", "golden={table: tests/golden/table1.csv}",
+                timeout=120)
+    assert r.returncode == 0, r.output
+    assert planned(r.output, "golden_check") == 1, r.output
+
+
 @pytest.mark.slow
 def test_smallest_fraction_in_the_message_is_accepted(tmp_path):
     """The smallest fraction the message names selects exactly the 8 corners, and the workflow takes it."""

@@ -5,13 +5,18 @@
 # ablation_report stacks them into results/report/ablation.csv and ablation.md.
 # Helpers live in the package (trivsel.study.ablation), so this file has rules only.
 
+from snakemake.exceptions import WorkflowError
+
 import trivsel.study.ablation as ablation_pkg
 
-ABLATION_VARIANTS = (
-    ablation_pkg.variant_names(config["ablation"]["variants"])
-    if config["ablation"]["activate"]
-    else []
-)
+# The variant names are checked whether the stage is on or not, like the schema's keys, so a
+# bad name stops the workflow when it loads with one line naming the key and the entry
+# (trivsel.study.ablation raises ValueError).
+try:
+    _ABLATION_NAMES = ablation_pkg.variant_names(config["ablation"]["variants"])
+except ValueError as exc:
+    raise WorkflowError(f"config ablation: variants: {exc}") from None
+ABLATION_VARIANTS = _ABLATION_NAMES if config["ablation"]["activate"] else []
 ABLATION_TARGETS = (
     ["results/report/ablation.csv", "results/report/ablation.md"]
     if config["ablation"]["activate"]

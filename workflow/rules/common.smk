@@ -11,6 +11,7 @@ import numbers
 import re
 from pathlib import Path
 
+import yaml
 from snakemake.exceptions import WorkflowError
 
 from trivsel.exceptions import InputError
@@ -19,9 +20,47 @@ from trivsel.options import Options, applies, config_schema, method_group, optio
 from trivsel.selection import count_for_fraction
 
 
-# --- checks the schema cannot make.  JSON Schema counts 16.0 as an integer, so the integer
-# keys are checked here for Python ints (a YAML "16.0" is a float and would become a
-# folder n16.0).
+# --- checks the schema cannot make.  JSON Schema compares a number with its bounds, and every
+# comparison with NaN is false, so `.nan` passes any minimum and maximum, and `.inf` passes a key
+# bounded on one side only (golden: rtol, atol).  So every number of the config is checked
+# finite here, before any code below uses it, and the message gives the key's range from the
+# schema.  `reduce: options:` is left to trivsel.Options (build_variants), which refuses a
+# non-finite option with its own one-line message.
+_CONFIG_SCHEMA = yaml.safe_load(Path(workflow.basedir, "workflow", "schemas", "config.schema.yaml").read_text())
+
+
+def _range_text(schema):
+    """The schema's bounds of a number as text: " in (0, 1]", " >= 0", or "" (no bounds)."""
+    lo = ("(", ">", schema.get("exclusiveMinimum")) if "exclusiveMinimum" in schema else \
+        ("[", ">=", schema.get("minimum"))
+    hi = (")", "<", schema.get("exclusiveMaximum")) if "exclusiveMaximum" in schema else \
+        ("]", "<=", schema.get("maximum"))
+    if lo[2] is not None and hi[2] is not None:
+        return f" in {lo[0]}{lo[2]:g}, {hi[2]:g}{hi[0]}"
+    for _, op, bound in (lo, hi):
+        if bound is not None:
+            return f" {op} {bound:g}"
+    return ""
+
+
+def _require_finite(path, value, schema):
+    if isinstance(value, dict):
+        for k, v in value.items():
+            if path == ("reduce",) and k == "options":
+                continue
+            _require_finite(path + (k,), v, schema.get("properties", {}).get(k, {}))
+    elif isinstance(value, list):
+        for v in value:
+            _require_finite(path, v, schema.get("items", {}))
+    elif isinstance(value, numbers.Real) and not isinstance(value, bool) and not math.isfinite(value):
+        raise WorkflowError(f"config {': '.join(path)}: {value!r} must be a finite number{_range_text(schema)}")
+
+
+_require_finite((), config, _CONFIG_SCHEMA)
+
+
+# JSON Schema also counts 16.0 as an integer, so the integer keys are checked here for
+# Python ints (a YAML "16.0" is a float and would become a folder n16.0).
 def _require_ints(key, values):
     values = values if isinstance(values, list) else [values]
     for v in values:
@@ -94,6 +133,18 @@ def build_variants(option_lists):
                                     f"{' and '.join(method_group(k))} only, not to the swept method(s) "
                                     f"{', '.join(methods)}")
     return variants
+
+
+# --- the golden table: golden_check reads it as a file, and a folder would pass the dry run
+# and fail only in the job (a missing file only when the DAG is built).  A relative path is
+# relative to the working directory, as the rule's input is.
+_GOLDEN = config["golden"]["table"]
+if _GOLDEN and not Path(_GOLDEN).is_file():
+    raise WorkflowError(
+        f"config golden: table: {_GOLDEN!r} is "
+        f"{'a folder' if Path(_GOLDEN).is_dir() else 'not an existing file'}"
+        + ("" if Path(_GOLDEN).is_absolute() else f" (relative to the working directory {str(Path.cwd())!r})")
+    )
 
 
 #: tag -> trivsel.Options of every variant of the sweep.
