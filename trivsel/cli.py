@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from .exceptions import InputError, MemoryShortage, one_line, shown
+from .exceptions import InputError, MemoryShortage, check_tolerance, one_line, shown
 
 __all__ = ["main", "build_parser"]
 
@@ -484,14 +484,12 @@ def _cmd_compile(a):
 
 
 def _cmd_compare(a):
-    import math
     import os
 
     from .regression import compare_frames, format_mismatches, read_table
 
     for name, tol in (("--rtol", a.rtol), ("--atol", a.atol)):
-        if not (math.isfinite(tol) and tol >= 0):
-            raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
+        check_tolerance(name, tol)
     for path in (a.new, a.golden):
         if not os.path.isfile(path):
             raise InputError(f"table {path!r} " + ("is not a file" if os.path.exists(path) else "does not exist"))

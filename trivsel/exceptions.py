@@ -30,7 +30,7 @@ def check_threads(threads):
     return int(threads)
 
 
-def _real(value) -> bool:
+def is_real(value) -> bool:
     """Whether ``value`` is one real number: an int, a float or a NumPy real scalar, not a bool,
     a string, a complex number, a sequence or an array."""
     import numpy as np
@@ -44,7 +44,7 @@ def check_tolerance(name, tol):
 
     if tol is None:
         return None
-    if not _real(tol) or not math.isfinite(tol) or tol < 0:
+    if not is_real(tol) or not math.isfinite(tol) or tol < 0:
         raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
     return float(tol)
 
@@ -56,7 +56,7 @@ def check_count(count, n_points):
 
     if count is None:
         return None
-    if not _real(count) or not math.isfinite(count) or int(count) != count or not 1 <= count <= n_points:
+    if not is_real(count) or not math.isfinite(count) or int(count) != count or not 1 <= count <= n_points:
         raise InputError(f"count must be an integer in [1, {n_points}], got {shown(count)}")
     return int(count)
 

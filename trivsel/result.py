@@ -11,7 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .exceptions import InputError, shown
+from .exceptions import InputError, is_real, shown
 
 __all__ = ["Snapshot", "ReductionResult"]
 
@@ -80,9 +80,7 @@ class ReductionResult:
 
     def snapshot(self, fraction):
         """The snapshot for ``fraction`` (nearest match)."""
-        import numbers
-
-        if isinstance(fraction, (bool, np.bool_)) or not isinstance(fraction, numbers.Real) or fraction != fraction:
+        if not is_real(fraction) or fraction != fraction:
             raise InputError(f"fraction must be a number, got {shown(fraction)}")
         return min(self.snapshots, key=lambda s: abs(s.fraction - float(fraction)))
 

@@ -18,13 +18,12 @@
 
 from __future__ import annotations
 
-import numbers
 from collections.abc import Mapping
 from decimal import ROUND_HALF_UP, Decimal
 
 import numpy as np
 
-from .exceptions import InputError, shown
+from .exceptions import InputError, is_real, shown
 
 __all__ = ["count_for_fraction", "validate_fractions", "candidate_points", "rank_candidates", "TIE_ORDERS"]
 
@@ -43,7 +42,7 @@ def validate_fractions(fractions):
         seq = [fractions]
     out = []
     for f in seq:
-        if isinstance(f, (bool, np.bool_)) or not isinstance(f, numbers.Real):
+        if not is_real(f):
             raise InputError(f"fraction {shown(f)} is not a number")
         v = float(f)
         if not (0.0 < v <= 1.0) or v != v:

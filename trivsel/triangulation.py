@@ -421,22 +421,26 @@ def face_table(tets, *, chunk=FACE_CHUNK):
                 cols[0, at] = (lo * n + mid) * n + hi
             else:
                 cols[0, at], cols[1, at], cols[2, at] = lo, mid, hi
-    if keyed:
-        order = np.argsort(cols[0], kind="stable")
-    else:
-        order = np.lexsort(cols[::-1])
-    new = np.ones(F, bool)
+    order, start, count = _runs(cols)
+    return {"order": order, "start": start, "count": count, "odd": odd}
+
+
+def _runs(cols):
+    """``(order, start, count)`` of rows given as key columns (one int64 key a row, or the
+    row's columns): a stable lexicographic sort, where each run of equal rows begins in it,
+    and each row's count of its equals (int32)."""
+    F = cols.shape[1]
+    order = np.argsort(cols[0], kind="stable") if len(cols) == 1 else np.lexsort(cols[::-1])
+    same = np.ones(max(F - 1, 0), bool)  # a row equal to the one before it in ``order``
     for col in cols:
         c = col[order]
-        new[1:] &= c[1:] == c[:-1]
+        same &= c[1:] == c[:-1]
         del c
-    new[1:] = ~new[1:]  # a run begins where any column changes
-    start = np.flatnonzero(new)
-    del new, cols
+    start = np.flatnonzero(np.r_[True, ~same]) if F else np.zeros(0, np.int64)
     runs = np.diff(np.append(start, F)).astype(np.int32)
     count = np.empty(F, np.int32)
     count[order] = np.repeat(runs, runs)
-    return {"order": order, "start": start, "count": count, "odd": odd}
+    return order, start, count
 
 
 def tet_faces(tets, f):
@@ -462,19 +466,10 @@ def face_multiplicity(rows):
     """For each row of sorted vertex triples ``rows`` (F, 3), how many rows equal it: one
     integer key per row while they fit in int64 (one 1-D argsort, then the length of each
     run of equal keys), else rows compared."""
-    rows = np.asarray(rows, np.int64)
+    rows = np.asarray(rows, np.int64).reshape(-1, 3)
     n = int(rows.max()) + 1 if rows.size else 1
-    if n ** 3 >= 2 ** 63:
-        _, inv, counts = np.unique(rows, axis=0, return_inverse=True, return_counts=True)
-        return counts[inv.ravel()]
-    key = (rows[:, 0] * n + rows[:, 1]) * n + rows[:, 2]
-    order = np.argsort(key)
-    k = key[order]
-    start = np.flatnonzero(np.concatenate([[True], k[1:] != k[:-1]]))
-    runs = np.diff(np.append(start, len(k)))
-    out = np.empty(len(k), np.int64)
-    out[order] = np.repeat(runs, runs)
-    return out
+    cols = ((rows[:, 0] * n + rows[:, 1]) * n + rows[:, 2])[None] if n ** 3 < 2 ** 63 else rows.T
+    return _runs(cols)[2]
 
 
 def edge_neighbours(tets, n_points: int):

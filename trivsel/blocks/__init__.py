@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..exceptions import InputError, shown
+from ..exceptions import InputError, check_tolerance, shown
 from . import slurm
 
 __all__ = ["Plan", "plan_blocks", "reduce_line", "reduce_plane", "reduce_block", "reduce_in_blocks", "merge_blocks",
@@ -602,14 +602,6 @@ def check_new_input(out, full):
     checked it (:func:`check_run_folder`), so it is not read again."""
     if full.get("input") is not None and not (Path(out) / CONFIG).exists():
         check_values(_open(full))
-
-
-def check_tolerance(name, tol):
-    """One-line InputError unless the tolerance ``name`` of a configuration is None or a
-    finite number >= 0 (a YAML value may be of any type)."""
-    if tol is not None and (isinstance(tol, bool) or not isinstance(tol, (int, float)) or not np.isfinite(tol)
-                            or tol < 0):
-        raise InputError(f"{name} must be a finite number >= 0, got {shown(tol)}")
 
 
 def check_types(config):
@@ -1250,11 +1242,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
     except OSError as exc:  # a system folder, a read-only or full file system
         from ..exceptions import one_line
 
-        for d in made:
-            try:
-                d.rmdir()
-            except OSError:
-                pass
+        _remove_empty_folders(made)
         raise InputError(f"cannot create the output folder {str(out)!r}: {one_line(exc)}") from None
     lock = _lock_folder(out)
     fresh = False
@@ -1317,10 +1305,17 @@ def _remove_unstarted_run(out, made):
 
     (out / CONFIG).unlink(missing_ok=True)
     shutil.rmtree(out / ".snakemake", ignore_errors=True)
+    _remove_empty_folders(made)
+
+
+def _remove_empty_folders(made):
+    """Remove the folders a run made (``made``, deepest first) while they are empty."""
     for d in made:
         try:
             d.rmdir()
-        except OSError:
+        except FileNotFoundError:  # never made: a mkdir that failed part way
+            continue
+        except OSError:  # not empty, and so none above it is
             break
 
 

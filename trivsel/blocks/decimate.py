@@ -634,17 +634,17 @@ def _finish(out, st):
     f = vol.read(tuple((0, n) for n in plan.shape)).reshape(-1)
     hi = np.asarray(plan.shape) - 1
 
-    def chunks():  # the points in the fit's own chunks, so that its sums are those of one piece's fit
+    def chunks(values=None):  # the points in the fit's own chunks, so that its sums are those of one piece's fit
         for s in range(0, N, CHUNK):
             idx = np.arange(s, min(s + CHUNK, N), dtype=np.int64)
-            verts, w, value = B.point_weights_of(plan.shape, T, owner, idx, f)
+            got = B.point_weights_of(plan.shape, T, owner, idx, values)  # with the interpolant of ``values``
             ijk = np.stack(np.unravel_index(idx, plan.shape), axis=1)
-            yield idx, verts, w, value, np.all((ijk > 0) & (ijk < hi), axis=1)
+            yield idx, *got[:2], got[2] if values is not None else None, np.all((ijk > 0) & (ijk < hi), axis=1)
 
     data_sums = ErrorSums()
 
     def summed():  # the data values' errors (as the kernels computed them), summed on the way through the points
-        for idx, verts, w, value, inner in chunks():
+        for idx, verts, w, value, inner in chunks(f):
             data_sums.add(f[idx] - value, inner)
             yield idx, verts, w
 
