@@ -552,6 +552,15 @@ def _output_cases(tmp: Path):
         ("convert: output an existing empty folder", ["convert", arr, str(tmp / "empty.zarr")], 2,
          "exists: trivsel convert never overwrites"),
         ("convert: output under a file", ["convert", arr, str(tmp / "a_file" / "x.zarr")], 2, "is not writable"),
+        # a name longer than the file system takes (255 bytes): Path.exists raises, not False
+        ("--out name too long", ["reduce", *FN, "--fractions", "0.5", "--out", str(tmp / ("n" * 300))], 2,
+         ("cannot use the output folder", "nnnnnnnnnn", "File name too long")),
+        ("blocks: --out name too long", ["blocks", *BLOCKS_FN, "--out", str(tmp / ("n" * 300))], 2,
+         ("cannot use the output folder", "nnnnnnnnnn", "File name too long")),
+        ("convert: output name too long", ["convert", arr, str(tmp / ("n" * 300 + ".zarr"))], 2,
+         ("cannot use the output", "nnnnnnnnnn.zarr", "File name too long")),
+        ("blocks: --out under a file", ["blocks", *BLOCKS_FN, "--out", str(tmp / "a_file" / "run")], 2,
+         "a_file' is not writable"),
     ]
 
 
@@ -749,7 +758,26 @@ def _names():
 
 @pytest.mark.parametrize("name", _names())
 def test_hostile_case_gives_one_line_and_no_output(tmp_path, name):
-    case = {c[0]: c for c in _cases(tmp_path)}[name]
+    _check_case(tmp_path, {c[0]: c for c in _cases(tmp_path)}[name])
+
+
+def _blocks_refusals():
+    import tempfile
+
+    with tempfile.TemporaryDirectory() as d:
+        return [c[0] for c in _cases(Path(d)) if c[1][0] == "blocks" and c[2] == 2]
+
+
+@pytest.mark.parametrize("name", _blocks_refusals())
+def test_blocks_dry_run_refuses_what_the_run_refuses(tmp_path, name):
+    """`trivsel blocks -n` refuses every input the run refuses before it starts work (an output
+    folder that cannot be created among them), with the same line, and makes nothing."""
+    _, argv, expected, fragments = {c[0]: c for c in _cases(tmp_path)}[name]
+    at = argv.index("--") if "--" in argv else len(argv)  # -n is trivsel's, before Snakemake's arguments
+    _check_case(tmp_path, (name, [*argv[:at], "-n", *argv[at:]], expected, fragments))
+
+
+def _check_case(tmp_path, case):
     _, argv, expected, fragments = case
     fragments = (fragments,) if isinstance(fragments, str) else fragments
     assert max(map(len, fragments)) >= 10, fragments  # a phrase of the message, not a character
@@ -844,13 +872,14 @@ def test_blocks_refuses_a_folder_another_run_holds(tmp_path):
     out.mkdir()
     lock = _lock_folder(out)
     try:
-        code, err, _ = _run(["blocks", *BLOCKS_FN, "--out", str(out)])
+        for extra in ([], ["-n"]):  # a dry run predicts the refusal
+            code, err, _ = _run(["blocks", *BLOCKS_FN, *extra, "--out", str(out)])
+            assert code == 2
+            _one_line(err, "another trivsel blocks run is working in")
     finally:
         import os
 
         os.close(lock)
-    assert code == 2
-    _one_line(err, "another trivsel blocks run is working in")
     assert list(out.iterdir()) == []
 
 
@@ -873,11 +902,11 @@ def test_blocks_dry_run_creates_nothing(tmp_path, capfd):
     import tempfile
 
     plans = set(Path(tempfile.gettempdir()).glob("trivsel-blocks-plan-*"))
-    out = tmp_path / "planned"
+    out = tmp_path / "new" / "planned"  # the dry run tries to make it, as the run would, and removes it
     assert main(["blocks", *BLOCKS_FN, "-n", "--out", str(out)]) == 0
     text = "".join(capfd.readouterr())
     assert "This was a dry-run" in text and "block" in text
-    assert not out.exists()
+    assert list(tmp_path.iterdir()) == []
     assert set(Path(tempfile.gettempdir()).glob("trivsel-blocks-plan-*")) == plans
 
 

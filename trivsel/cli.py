@@ -163,7 +163,8 @@ def build_parser():
                         "scheduling; 0, one job per plane and block, on a local run); the results are the same "
                         "(decimate's jobs are x-slabs of blocks and regions already)")
     b.add_argument("-n", "--dry-run", action="store_true",
-                   help="show the jobs and their resources; run nothing and create nothing")
+                   help="show the jobs and their resources; run nothing and create nothing (what the run "
+                        "would refuse before any job is refused the same way)")
     b.add_argument("-v", "--verbose", action="store_true",
                    help="show Snakemake's own log (default: one progress line over the jobs, and a failing "
                         "job's own message)")

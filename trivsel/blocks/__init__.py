@@ -1169,7 +1169,9 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
       input changed since the run there, a plan of more than :data:`MAX_JOBS` jobs, and
       (local runs) a job larger than the memory available;
     * one run at a time holds the folder (a lock on the folder itself, gone with the run);
-    * ``dry_run`` shows the jobs and creates nothing (a new folder is planned in a temporary one);
+    * ``dry_run`` shows the jobs and creates nothing (a new folder is planned in a temporary one),
+      after the checks above and the run's own folder checks (:func:`_make_run_folder`, the
+      folder made and removed again, and the lock): it refuses what the run would;
     * an interruption (KeyboardInterrupt, which the CLI raises on SIGTERM too) stops
       Snakemake and every job it started (their process group), removes their temporary
       files and raises again; finished jobs are kept for the next run.
@@ -1227,6 +1229,14 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 "--cores", str(cores), *extra, *batch, *snakemake_args]
 
     if dry_run:  # in the folder of an earlier run of this configuration, else in a temporary one
+        # the run's own folder checks, so that the dry run refuses what the run would: the folder
+        # is made as the run makes it (only an attempt tells whether a file system takes it:
+        # /proc, a read-only mount, a name too long) and removed again, and its lock is tried
+        made = _make_run_folder(out)
+        try:
+            os.close(_lock_folder(out))
+        finally:
+            _remove_empty_folders(made)
         plan_in = out if (out / CONFIG).exists() else Path(tempfile.mkdtemp(prefix="trivsel-blocks-plan-"))
         try:
             if plan_in != out:
@@ -1236,14 +1246,7 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
             if plan_in != out:
                 shutil.rmtree(plan_in, ignore_errors=True)
 
-    made = [d for d in (out, *out.parents) if not d.exists()]  # the folders this run makes
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-    except OSError as exc:  # a system folder, a read-only or full file system
-        from ..exceptions import one_line
-
-        _remove_empty_folders(made)
-        raise InputError(f"cannot create the output folder {str(out)!r}: {one_line(exc)}") from None
+    made = _make_run_folder(out)
     lock = _lock_folder(out)
     fresh = False
     try:
@@ -1306,6 +1309,21 @@ def _remove_unstarted_run(out, made):
     (out / CONFIG).unlink(missing_ok=True)
     shutil.rmtree(out / ".snakemake", ignore_errors=True)
     _remove_empty_folders(made)
+
+
+def _make_run_folder(out):
+    """Make the run's folder ``out`` and its missing parents; returns the folders made (deepest
+    first, for :func:`_remove_empty_folders`).  One-line InputError when the file system refuses
+    (a system folder, a read-only or full file system), with what it made removed."""
+    made = [d for d in (out, *out.parents) if not os.path.exists(d)]  # the folders this run makes
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        from ..exceptions import one_line
+
+        _remove_empty_folders(made)
+        raise InputError(f"cannot create the output folder {str(out)!r}: {one_line(exc)}") from None
+    return made
 
 
 def _remove_empty_folders(made):

@@ -1148,6 +1148,7 @@ def check_output_dir(out_dir, inputs=(), files=()):
     if not str(out_dir).strip():
         raise InputError(f"--out {str(out_dir)!r} is empty: name the output folder")
     out = Path(out_dir).expanduser()
+    check_name(out, f"the output folder {str(out)!r}")
     if out.exists() and not out.is_dir():
         raise InputError(f"--out {str(out)!r} is an existing file, not a folder")
     resolved = out.resolve()
@@ -1162,6 +1163,17 @@ def check_output_dir(out_dir, inputs=(), files=()):
     check_writable(resolved, f"the output folder {str(out)!r}")
     _check_foreign_files(resolved, files)
     return resolved
+
+
+def check_name(path, what):
+    """One-line InputError when the file system cannot even look ``path`` up: a name longer than
+    it takes, or a parent folder this process may not search (``Path.exists`` raises then)."""
+    try:
+        os.stat(path)
+    except (FileNotFoundError, NotADirectoryError):  # not there (yet), or under a file: the callers say
+        pass
+    except OSError as exc:  # the message without the path, which ``what`` names
+        raise InputError(f"cannot use {what}: {exc.strerror or one_line(exc)}") from None
 
 
 def check_writable(path, what):

@@ -724,7 +724,7 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
         meanwhile; it gets the usual permissions (0777 less the umask).
     """
     from . import check_writable, remove_dead_temporaries, remove_tree, rename_no_replace, signals_deferred
-    from . import temporary_prefix, umask_mode
+    from . import check_name, temporary_prefix, umask_mode
 
     if not str(out).strip():
         raise InputError(f"the output {str(out)!r} is empty: name a new *.zarr store")
@@ -732,6 +732,7 @@ def convert(source, out, *, chunks=64, array: str | None = None, volume: int | N
     if out.suffix.lower() != ".zarr":
         raise InputError(f"the output {str(out)!r} must be named *.zarr" + (
             " (a name before .zarr)" if out.name.lower() == ".zarr" else ""))
+    check_name(out, f"the output {str(out)!r}")
     if out.exists() or out.is_symlink():
         raise InputError(f"the output {str(out)!r} exists: trivsel convert never overwrites; remove it or choose "
                          "another name")
