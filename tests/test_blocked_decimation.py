@@ -11,6 +11,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import trivsel
 from trivsel.blocks import check_tetrahedra
 from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
@@ -147,6 +148,59 @@ def test_an_e_rms_tolerance_holds_across_the_seams_with_about_the_count_of_one_p
     assert rms(r) <= tol
     assert np.sum(r ** 2) <= out["stats"]["sse_bound"] * (1 + 1e-9) <= tol ** 2 * vol.size
     assert len(out["vertices"]) <= 1.03 * m
+
+
+def ramps(shape):
+    """``sin(i / 3) j + k^2``: linear along j and quadratic along k, so that many collapses cost
+    nothing but the rounding of their interpolants (a residual of 1e-15 where the exact one is 0)."""
+    i, j, k = np.indices(shape).astype(float)
+    return np.sin(i / 3) * j + k ** 2
+
+
+@pytest.mark.parametrize("shape, block, tol", [
+    ((7, 17, 12), 12, 0.0),
+    ((11, 11, 13), 7, 0.0),
+    ((11, 13, 12), 7, 5.830679117429392e-16),  # the E_RMS of a run to 30 % in one piece
+])
+def test_an_e_rms_tolerance_on_the_scale_of_rounding_holds_in_blocks(shape, block, tol):
+    """Found by fuzzing ``reduce(..., block=...)``: at ``tol_rms`` 0 these runs reported E_RMS
+    of 3e-15 (one piece: 0).  The regions' decimations started from their points' residuals in
+    the rounded weights, while the collapses and the final errors take the kernel's interpolant,
+    so a collapse could trade one rounding for another inside the budget."""
+    d = grid_from_array(ramps(shape))
+    for block_ in (block, None):
+        shot = trivsel.reduce(d, method="decimate", tol_rms=tol, **({"block": block_} if block_ else {})).snapshots[-1]
+        assert shot.errors["E_rms"] <= tol, block_
+
+
+@settings(max_examples=examples(0.02), deadline=None)
+@given(st.tuples(*[st.integers(4, 11)] * 3), st.integers(3, 7), st.sampled_from([0.0, 1e-16, 1e-15, 1e-14]),
+       st.sampled_from(["ramps", "levels"]), st.integers(0, 2**32 - 1))
+def test_an_e_rms_tolerance_holds_in_blocks_down_to_zero(shape, block, tol, kind, seed):
+    """The E_RMS that ``reduce(..., block=...)`` reports is within ``tol_rms``, tolerances of 0
+    and on the scale of rounding included, on data where many collapses cost exactly or nearly
+    nothing (ramps; a few integer levels)."""
+    vol = ramps(shape) if kind == "ramps" else np.random.default_rng(seed).integers(0, 3, shape).astype(float)
+    shot = trivsel.reduce(grid_from_array(vol), method="decimate", tol_rms=tol, block=block).snapshots[-1]
+    assert shot.errors["E_rms"] <= tol
+
+
+def test_a_regions_points_start_with_the_residuals_of_the_kernels_interpolant():
+    """A mesh on a lattice with points inside its tetrahedra (a region of a pass) starts with
+    each point's residual from the kernel's interpolant, the number its collapses and the
+    final errors take (:func:`point_weights_of`), bit for bit."""
+    from trivsel.decimation import new_mesh_state
+    from trivsel.decimation.blocked import point_weights
+
+    vol = ramps((9, 10, 11)) * 1.1
+    out = decimate_in_blocks(vol, 4, fraction=0.2)
+    f = vol.reshape(-1)
+    _, _, value = point_weights(vol.shape, out["tets"], out["ptet"], f)
+    ijk = np.stack(np.unravel_index(np.arange(vol.size), vol.shape), axis=1)
+    S = new_mesh_state(ijk * 0.5 + 3.0, out["tets"], f, located=out["ptet"])  # a lattice of another spacing
+    inside = out["ptet"] >= 0
+    assert inside.sum() > 100
+    assert np.array_equal(S.res[inside], (f - value)[inside])
 
 
 @pytest.mark.parametrize("first", ["count", "tol_rms"])

@@ -311,6 +311,40 @@ def _det3(u, v, w):
     return np.einsum("ij,ij->i", np.cross(u, v), w)
 
 
+def _cross(u, v):
+    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
+
+
+def _dot(u, v):
+    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
+
+
+def lattice_weights(x, q):
+    """The integer barycentric weights of points in their tetrahedra on a lattice, as the
+    collapse kernel computes them: ``x`` the points' coordinates and ``q`` their tetrahedra's
+    corners' (three int64 arrays each, one per axis, of shapes (k,) and (k, 4)).  With ``d_j
+    = q_j - x`` (corner j less the point), the signed volumes with x in each slot in turn are
+    exact integers from two cross products::
+
+        l0 = d1 . (d2 x d3)     l1 = -d0 . (d2 x d3)
+        l2 = d3 . (d0 x d1)     l3 = -d2 . (d0 x d1)
+
+    Returns the (k, 4) int64 array of ``l``."""
+    d = [[q[a][:, j] - x[a] for a in range(3)] for j in range(4)]
+    c23, c01 = _cross(d[2], d[3]), _cross(d[0], d[1])
+    return np.stack([_dot(d[1], c23), -_dot(d[0], c23), _dot(d[3], c01), -_dot(d[2], c01)], axis=1)
+
+
+def lattice_interpolant(lam, fc):
+    """The linear interpolant (eq. 13) at points of weights ``lam`` (:func:`lattice_weights`)
+    in tetrahedra of corner values ``fc`` (k, 4), as the collapse kernel computes it: ``(l0 f0
+    + l1 f1 + l2 f2 + l3 f3) / (l0 + l1 + l2 + l3)`` in that order, not from rounded weights.
+    A residual the kernel kept within a tolerance is then the same number here, to the bit."""
+    lf, fc = lam.astype(np.float64), np.asarray(fc, np.float64)
+    return (lf[:, 0] * fc[:, 0] + lf[:, 1] * fc[:, 1] + lf[:, 2] * fc[:, 2] + lf[:, 3] * fc[:, 3]) \
+        / (lf[:, 0] + lf[:, 1] + lf[:, 2] + lf[:, 3])
+
+
 #: How far (in units of the float spacing of the largest coordinate) a point may be from
 #: its lattice position and still count as on the lattice: the rounding of ``origin + i *
 #: spacing`` in whatever order a writer computed it, nothing a user would mean as a shift.
@@ -376,7 +410,11 @@ def new_mesh_state(points, tets, values, *, located=None, key="sse", lazy=False,
             ptet[p] = t
             pnext[p] = phead[t]
             phead[t] = p
-        if len(inside):
+        if len(inside) and ijk is not None:  # the kernel's own interpolant: its sums of squared residuals start right
+            corners = Tm[ptet[inside]]
+            lam = lattice_weights(tuple(ijk[inside, a] for a in range(3)), tuple(ijk[corners, a] for a in range(3)))
+            res[inside] = f[inside] - lattice_interpolant(lam, f[corners])
+        elif len(inside):
             pf = np.asarray(points, np.float64)
             q = pf[Tm[ptet[inside]]]  # (k, 4, 3)
             x = pf[inside]

@@ -68,7 +68,7 @@ import time
 import numpy as np
 
 from ..selection import count_for_fraction
-from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, new_mesh_state, new_state
+from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, lattice_interpolant, lattice_weights, new_mesh_state, new_state
 from .streamcut import RUNS as STREAM_RUNS
 from .streamcut import streamed_cut_counts, streamed_threshold
 
@@ -958,18 +958,11 @@ def point_weights(shape, tets, ptet, values=None):
 
 def point_weights_of(shape, tets, ptet, points, values=None):
     """:func:`point_weights` of the grid points ``points`` only (global indices), so that a
-    caller can go through the grid in chunks.
-
-    With ``d_j = q_j - x`` (corner j less the point), the weights are the signed volumes
-    with x in each slot in turn, exact integers from two cross products::
-
-        l0 = d1 . (d2 x d3)     l1 = -d0 . (d2 x d3)
-        l2 = d3 . (d0 x d1)     l3 = -d2 . (d0 x d1)
-
-    With ``values`` (the grid's, flat), also returns the linear interpolant at each point
-    (eq. 13) as the collapse kernel computes it, ``(l0 f0 + l1 f1 + l2 f2 + l3 f3) / (l0 + l1 +
-    l2 + l3)`` in that order, not from the rounded weights: a residual the kernel kept within an
-    E_inf tolerance is then the same number here, to the bit.
+    caller can go through the grid in chunks: the integer weights of
+    :func:`~trivsel.decimation.lattice_weights`, and with ``values`` (the grid's, flat) also
+    the interpolant there as the collapse kernel computes it
+    (:func:`~trivsel.decimation.lattice_interpolant`), so that a residual the kernel kept
+    within an E_inf tolerance is the same number here, to the bit.
     """
     points = np.asarray(points, np.int64)
     verts = np.repeat(points[:, None], 4, axis=1)
@@ -979,17 +972,12 @@ def point_weights_of(shape, tets, ptet, points, values=None):
     inside = np.flatnonzero(ptet[points] >= 0)
     for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
         corners = tets[ptet[points[part]]]
-        x = _grid_coordinates(points[part], shape)
-        q = _grid_coordinates(corners.astype(np.int64, copy=False), shape)
-        d = [[q[a][:, j] - x[a] for a in range(3)] for j in range(4)]
-        c23, c01 = _cross(d[2], d[3]), _cross(d[0], d[1])
-        lam = np.stack([_dot(d[1], c23), -_dot(d[0], c23), _dot(d[3], c01), -_dot(d[2], c01)], axis=1)
+        lam = lattice_weights(_grid_coordinates(points[part], shape),
+                              _grid_coordinates(corners.astype(np.int64, copy=False), shape))
         verts[part] = corners
         w[part] = lam / lam.sum(axis=1, keepdims=True)
         if value is not None:
-            lf, fc = lam.astype(np.float64), np.asarray(values)[corners].astype(np.float64)
-            value[part] = (lf[:, 0] * fc[:, 0] + lf[:, 1] * fc[:, 1] + lf[:, 2] * fc[:, 2] + lf[:, 3] * fc[:, 3]) \
-                / (lf[:, 0] + lf[:, 1] + lf[:, 2] + lf[:, 3])
+            value[part] = lattice_interpolant(lam, np.asarray(values)[corners])
     return (verts, w) if values is None else (verts, w, value)
 
 
@@ -999,14 +987,6 @@ def _grid_coordinates(p, shape):
     i, r = np.divmod(p, yz)
     j, k = np.divmod(r, int(shape[2]))
     return i, j, k
-
-
-def _cross(u, v):
-    return (u[1] * v[2] - u[2] * v[1], u[2] * v[0] - u[0] * v[2], u[0] * v[1] - u[1] * v[0])
-
-
-def _dot(u, v):
-    return u[0] * v[0] + u[1] * v[1] + u[2] * v[2]
 
 
 def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=("data",), interior=None,
