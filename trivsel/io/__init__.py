@@ -1178,12 +1178,20 @@ def check_name(path, what):
 
 def check_writable(path, what):
     """One-line InputError unless ``path`` can be created: its nearest existing ancestor is a
-    folder this process can write into."""
+    folder this process can write into, and a folder made there (and removed at once) is
+    taken.  Only the attempt tells: as root, ``os.access`` calls ``/proc`` or a read-only
+    mount writable, and a run would otherwise find out when it writes, after all its work."""
+    import tempfile
+
     probe = Path(path)
     while not probe.exists():
         probe = probe.parent
     if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
         raise InputError(f"cannot write {what}: {str(probe)!r} is not writable")
+    try:  # named as a temporary, so that a run killed at this instant leaves nothing a later run keeps
+        os.rmdir(tempfile.mkdtemp(prefix=temporary_prefix("probe"), dir=probe))
+    except OSError as exc:
+        raise InputError(f"cannot write {what}: {str(probe)!r} takes no new folder: {exc.strerror or one_line(exc)}") from None
 
 
 def temporary_prefix(name: str) -> str:
