@@ -59,6 +59,16 @@ def slurm():
         pytest.skip("no SLURM answers `sinfo` (start the local one: scripts/slurm-local.sh start)")
 
 
+# The Snakemake options of the SLURM tests' status checks.  After a check that finds a job ended
+# (the next jobs are submitted then), the executor plugin checks again after this many seconds,
+# then 10 s later each time than the time before while none ends (its own rule; no option sets
+# the step).  The tests' runs are chains of jobs of 5-6 s, up to 13 s when a job waits for a free
+# CPU or the machine is busy: with 3, the checks come 3, 16 and 39 s after a submission, so the
+# second one sees such a job end (with 5 it came after 20 s; with 1, after 12 s, and a job that
+# took longer was seen only after 33 s).
+SLURM_STATUS_CHECKS = ["--slurm-init-seconds-before-status-checks", "3"]
+
+
 def sacct_rows(ids, fields, tries=60):
     """sacct's rows for SLURM job ``ids`` (``{id: {field: value}}``), once all are COMPLETED
     or after ``tries`` seconds (sacct lags the end of a job by about a second)."""

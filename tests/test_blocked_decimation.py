@@ -437,18 +437,20 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     assert stopped and int(stopped.group(1)) > 300, err
     assert f"{int(stopped.group(1))}" in (tmp_path / "o8" / "errors.csv").read_text()
 
-    # 64.5 M points need 30 GiB in one piece; with 16 GiB available, blocks of 96 fit, and every job
-    # of decimate's in blocks of 48 (the step and last jobs hold the whole grid's arrays)
-    monkeypatch.setattr(resources, "available_bytes", lambda: 16 * 2**30)
-    argv = ["reduce", "--function", "4", "--n", "400", "--method", "decimate", "--fractions", "0.05", "--out",
+    # 8.1 M points need 3.8 GiB in one piece; with 2 GiB available, blocks of 48 fit, and every job
+    # of decimate's in blocks of 32 (the step and last jobs hold the whole grid's arrays).  The grid
+    # is sampled before the reduction weighs its memory, so it is kept this small: the refusal
+    # and the command it names work alike for any grid too large for the memory.
+    monkeypatch.setattr(resources, "available_bytes", lambda: 2 * 2**30)
+    argv = ["reduce", "--function", "4", "--n", "200", "--method", "decimate", "--fractions", "0.05", "--out",
             str(tmp_path / "big")]
     assert main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     # the refusal names decimate's jobs in blocks (regions of at most 1.5 GiB), and the one-process --block
-    jobs = (f"trivsel blocks --function 4 --n 400 --method decimate --block 48 --fraction 0.05 --out "
+    jobs = (f"trivsel blocks --function 4 --n 200 --method decimate --block 32 --fraction 0.05 --out "
             f"{tmp_path / 'big'} -c 2")
     assert len(err) == 1 and err[0].endswith(f"in blocks of bounded memory: {jobs} (or in one process: trivsel "
-                                             + " ".join(argv) + " --block 96)"), err
+                                             + " ".join(argv) + " --block 48)"), err
     assert not (tmp_path / "big").exists()
     assert main(shlex.split(jobs)[1:] + ["-n"]) == 0  # the command named passes its own memory check
     capsys.readouterr()

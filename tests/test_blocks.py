@@ -453,13 +453,13 @@ def test_slurm_blocked_run_matches_local_run(tmp_path, slurm):
     import math
     from pathlib import Path
 
-    from conftest import sacct_rows
+    from conftest import SLURM_STATUS_CHECKS, sacct_rows
 
     from trivsel.blocks import group_components
 
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     r = run_blocks(tmp_path / "slurm", "--", "--executor", "slurm", "--workflow-profile", str(profile), "--jobs", "4",
-                   "--slurm-init-seconds-before-status-checks", "5")
+                   *SLURM_STATUS_CHECKS)
     output = r.stdout + r.stderr
     assert r.returncode == 0, output[-5000:]
     ids = sorted(set(re.findall(r"has been submitted with SLURM jobid (\d+)", output)), key=int)
@@ -484,10 +484,12 @@ def slurm_blocks_command(out):
     through the workflow profile."""
     from pathlib import Path
 
+    from conftest import SLURM_STATUS_CHECKS
+
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     return [sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", "16", "--block", "8",
             "--tol-inf", "0.01", "--out", str(out), "--", "--executor", "slurm", "--workflow-profile", str(profile),
-            "--jobs", "4", "--slurm-init-seconds-before-status-checks", "5"]
+            "--jobs", "4", *SLURM_STATUS_CHECKS]
 
 
 @contextlib.contextmanager
@@ -746,6 +748,8 @@ def test_slurm_failing_job_gives_its_own_message(tmp_path, slurm):
     import os
     from pathlib import Path
 
+    from conftest import SLURM_STATUS_CHECKS
+
     from trivsel.blocks import write_config
 
     v = np.fromfunction(lambda i, j, k: np.sin(i) + j * k / 10.0, (9, 9, 9))
@@ -759,7 +763,7 @@ def test_slurm_failing_job_gives_its_own_message(tmp_path, slurm):
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
     r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", str(src), "--block", "4", "--tol-inf", "0.05",
                         "--out", str(tmp_path / "o"), "--", "--executor", "slurm", "--workflow-profile", str(profile),
-                        "--slurm-init-seconds-before-status-checks", "5", "--retries", "0"],
+                        *SLURM_STATUS_CHECKS, "--retries", "0"],
                        capture_output=True, text=True, timeout=600)
     assert r.returncode == 2, r.stderr
     assert r.stderr.count("\n") == 1 and r.stderr.startswith(

@@ -4,6 +4,7 @@ errors and the fitted values of that mesh, as a conforming tetrahedralisation in
 
 import json
 import os
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -27,6 +28,26 @@ def _read(path):
 
 def _same_tets(a, b):
     return np.array_equal(np.unique(np.sort(a, axis=1), axis=0), np.unique(np.sort(b, axis=1), axis=0))
+
+
+# The run of four tests that rerun some of its jobs in process: f4, n 40, blocks of 16, to a count
+# of 3000, its temporary files kept.  It is made once per module and worker; each test gets a
+# copy of its folder (the jobs name their files relative to it), so that a job one test reruns
+# or a file it changes reaches no other test.
+_COUNTED_RUN = ["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000"]
+
+
+@pytest.fixture(scope="module")
+def _counted_run(tmp_path_factory):
+    out = tmp_path_factory.mktemp("counted") / "run"
+    assert main(_COUNTED_RUN + ["--out", str(out), "-c", "2", "--", "--notemp"]) == 0
+    return out
+
+
+@pytest.fixture
+def counted_run(_counted_run, tmp_path):
+    """A copy of the module's counted run, in ``tmp_path / "run"``."""
+    return Path(shutil.copytree(_counted_run, tmp_path / "run", symlinks=True))
 
 
 def test_the_jobs_give_the_mesh_of_one_process_with_its_errors(tmp_path, capsys):
@@ -262,7 +283,7 @@ def test_files_of_a_run_begun_before_errors_were_recorded_read_as_no_error_spent
     assert D._spent(tmp_path, st, 0) == 0.0 and D._spent(tmp_path, st, 1) == 0.0
 
 
-def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_path, capsys, monkeypatch):
+def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(counted_run, monkeypatch):
     """The costs jobs record each block down to a floor under its share of the count; where the
     cut compares a cost past a record's end, the cut job records that block again to its end
     (``costs/whole.npz``) and the mesh jobs replay it: the threshold and the blocks' meshes of
@@ -270,10 +291,7 @@ def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_
     again, and the stages run in this process."""
     from trivsel.blocks import decimate as D
 
-    out = tmp_path / "run"
-    assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
-                 "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
-    capsys.readouterr()
+    out = counted_run
     tau = json.loads((out / "tau.json").read_text())
     meshes = {p.name: D._load(p) for p in (out / "meshes").glob("*.npz")}
     (out / "tau.json").unlink()
@@ -291,7 +309,7 @@ def test_blocks_recorded_short_of_the_cut_are_recorded_again_by_the_cut_job(tmp_
         assert z.keys() == again.keys() and all(np.array_equal(z[k], again[k]) for k in z)
 
 
-def test_the_cut_job_reads_the_blocks_records_one_at_a_time(tmp_path, capsys, monkeypatch):
+def test_the_cut_job_reads_the_blocks_records_one_at_a_time(counted_run, tmp_path, capsys, monkeypatch):
     """The cut job holds a sample of the blocks' recorded costs, not every record: with the
     sample cut to a few runs a block it reads the costs files in several streams, one block's
     arrays at a time, and writes the same ``tau.json``, byte for byte (a count and a budget)."""
@@ -299,10 +317,11 @@ def test_the_cut_job_reads_the_blocks_records_one_at_a_time(tmp_path, capsys, mo
     from trivsel.decimation import streamcut
 
     for stop in (["--count", "3000"], ["--tol-rms", "0.002"]):
-        out = tmp_path / stop[0][2:]
-        assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", *stop,
-                     "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
-        capsys.readouterr()
+        out = counted_run if stop[0] == "--count" else tmp_path / stop[0][2:]
+        if stop[0] != "--count":
+            assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", *stop,
+                         "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
+            capsys.readouterr()
         before = (out / "tau.json").read_bytes()
         reads, held = [], []
         load = np.load
@@ -328,28 +347,24 @@ def test_the_cut_job_reads_the_blocks_records_one_at_a_time(tmp_path, capsys, mo
         assert all(len(cat["cost"]) <= 2 * 4 * blocks for h, _ in held for cat, *_ in h)
 
 
-def _quota_pass_run(tmp_path, capsys):
-    """A run to a count kept with its files: the jobs' module, the run's folder, its stages, the
-    first quota pass and that pass's folder."""
+def _quota_pass_run(out):
+    """The counted run ``out`` (kept with its files): the jobs' module, the run's folder, its
+    stages, the first quota pass and that pass's folder."""
     from trivsel.blocks import decimate as D
     from trivsel.blocks import read_config
 
-    out = tmp_path / "run"
-    assert main(["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
-                 "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
-    capsys.readouterr()
     st = D.Stages(*read_config(out))
     p = [kind for kind, _ in st.passes].index("quota")
     return D, out, st, p, out / "passes" / str(p)
 
 
-def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quota_job(tmp_path, capsys, monkeypatch):
+def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quota_job(counted_run, monkeypatch):
     """The first quota pass records each region to its share of the surplus and derives the cost
     limit from that; where the limit lies at or past a record's end, the quota job records that
     region again to twice its share (``again.npz``) and the apply jobs use it: the limit, the
     quotas and the meshes of whole records.  Here the first records stop at 16 collapses, so that
     regions are recorded again, and the pass's jobs run again in this process."""
-    D, out, st, p, folder = _quota_pass_run(tmp_path, capsys)
+    D, out, st, p, folder = _quota_pass_run(counted_run)
     assert D._load(folder / "plan.npz")["ran"]
     names = ["quota.npz"] + [f"out/{s}.npz" for s in st.region_slabs(p)]
     before = {name: D._load(folder / name) for name in names}
@@ -367,12 +382,12 @@ def test_regions_recorded_short_of_the_quota_limit_are_recorded_again_by_the_quo
         assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
 
 
-def test_region_and_quota_jobs_read_only_their_part_of_the_pass(tmp_path, capsys, monkeypatch):
+def test_region_and_quota_jobs_read_only_their_part_of_the_pass(counted_run, monkeypatch):
     """A region job's memory is its regions': of the pass's plan it reads the regions and the
     pass's figures, not the whole mesh's layout (``order``: every tetrahedron of the pass's
     regions; ``left``: a flag per point), and the quota job reads the regions' costs, not their
     meshes.  Run again while every .npz member read is recorded, the jobs write the same files."""
-    D, out, st, p, folder = _quota_pass_run(tmp_path, capsys)
+    D, out, st, p, folder = _quota_pass_run(counted_run)
     assert {"order", "left"} <= set(D._load(folder / "plan.npz"))
     names = ["quota.npz", "again.npz"] + [f"{d}/{s}.npz" for d in ("costs", "out") for s in st.region_slabs(p)]
     before = {name: D._load(folder / name) for name in names}
@@ -407,7 +422,7 @@ def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     import sys
     from pathlib import Path
 
-    from conftest import sacct_rows
+    from conftest import SLURM_STATUS_CHECKS, sacct_rows
 
     n, block, tol = 24, 8, 0.02
     profile = Path(__file__).resolve().parents[1] / "workflow" / "profiles" / "slurm"
@@ -415,7 +430,7 @@ def test_on_slurm_the_jobs_give_the_mesh_of_one_process(tmp_path, slurm):
     r = subprocess.run([sys.executable, "-m", "trivsel", "blocks", "--function", "4", "--n", str(n), "--block",
                         str(block), "--method", "decimate", "--tol-inf", str(tol), "--out", str(out), "--verbose", "--",
                         "--executor", "slurm", "--workflow-profile", str(profile),
-                        "--slurm-init-seconds-before-status-checks", "5"], capture_output=True, text=True, timeout=1200)
+                        *SLURM_STATUS_CHECKS], capture_output=True, text=True, timeout=1200)
     output = r.stdout + r.stderr
     assert r.returncode == 0, output[-5000:]
     ids = sorted(set(re.findall(r"has been submitted with SLURM jobid (\d+)", output)), key=int)

@@ -14,7 +14,7 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
-from conftest import sacct_rows
+from conftest import SLURM_STATUS_CHECKS, sacct_rows
 
 from trivsel.methods import METHODS
 from trivsel.options import Options, config_schema, option_fields, variant_tag
@@ -566,7 +566,7 @@ def test_slurm_run_matches_local_run(tmp_path, slurm):
         write_config(workdir, overrides)
     profile = REPO / "workflow" / "profiles" / "slurm"
     r = run_smk(cluster, *targets, "--executor", "slurm", "--workflow-profile", str(profile), "--jobs", "4",
-                "--slurm-init-seconds-before-status-checks", "5", timeout=900)
+                *SLURM_STATUS_CHECKS, timeout=900)
     assert r.returncode == 0, r.output[-5000:]
     submitted = dict(re.findall(r"Job (\d+) has been submitted with SLURM jobid (\d+)", r.output))
     remote_rules = re.findall(r"^rule (\w+):$", r.output, flags=re.M)  # jobs run as cluster jobs
