@@ -1188,7 +1188,7 @@ def check_writable(path, what):
         probe = probe.parent
     if not probe.is_dir() or not os.access(probe, os.W_OK | os.X_OK):
         raise InputError(f"cannot write {what}: {str(probe)!r} is not writable")
-    try:  # named as a temporary, so that a run killed at this instant leaves nothing a later run keeps
+    try:  # named as a temporary of this host and process (a run killed in this instant leaves it empty)
         os.rmdir(tempfile.mkdtemp(prefix=temporary_prefix("probe"), dir=probe))
     except OSError as exc:
         raise InputError(f"cannot write {what}: {str(probe)!r} takes no new folder: {exc.strerror or one_line(exc)}") from None
