@@ -1170,8 +1170,8 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
       (local runs) a job larger than the memory available;
     * one run at a time holds the folder (a lock on the folder itself, gone with the run);
     * ``dry_run`` shows the jobs and creates nothing (a new folder is planned in a temporary one),
-      after the checks above and the run's own folder checks (:func:`_make_run_folder`, the
-      folder made and removed again, and the lock): it refuses what the run would;
+      after the checks above and the lock of a folder that is there: it refuses what the run
+      would before its first job;
     * an interruption (KeyboardInterrupt, which the CLI raises on SIGTERM too) stops
       Snakemake and every job it started (their process group), removes their temporary
       files and raises again; finished jobs are kept for the next run.
@@ -1229,14 +1229,11 @@ def run_workflow(out, config, *, cores="all", snakemake_args=(), dry_run=False, 
                 "--cores", str(cores), *extra, *batch, *snakemake_args]
 
     if dry_run:  # in the folder of an earlier run of this configuration, else in a temporary one
-        # the run's own folder checks, so that the dry run refuses what the run would: the folder
-        # is made as the run makes it (only an attempt tells whether a file system takes it:
-        # /proc, a read-only mount, a name too long) and removed again, and its lock is tried
-        made = _make_run_folder(out)
-        try:
+        # whether a file system takes the folder, check_output_dir has tried (a folder made in
+        # its nearest parent); what is left of the run's own checks is the lock of a folder
+        # that is there, which another run may hold
+        if out.is_dir():
             os.close(_lock_folder(out))
-        finally:
-            _remove_empty_folders(made)
         plan_in = out if (out / CONFIG).exists() else Path(tempfile.mkdtemp(prefix="trivsel-blocks-plan-"))
         try:
             if plan_in != out:
