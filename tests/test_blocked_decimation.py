@@ -17,7 +17,7 @@ from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
 from trivsel.decimation.blocked import (SSE_SHARE, block_cuts, cut_counts, cut_quota, decimate_in_blocks, quality_note,
                                         quota_limit, running_sse, short_blocks, sse_at, streamed_cut_counts,
-                                        streamed_threshold, threshold, tied_counts)
+                                        streamed_threshold, threshold, tied_counts, tile_fit, tile_of)
 from trivsel.selection import count_for_fraction
 
 from conftest import examples
@@ -649,3 +649,57 @@ def test_a_pass_merged_in_place_is_the_pass_merged_into_new_arrays(seed, n_tets,
         blocked.PLAN_CHUNK = monkey
     for a, b in zip(want, got):
         assert np.array_equal(a, b) and np.asarray(a).dtype == np.asarray(b).dtype
+
+
+def _fit_rms(vol, out, fitted):
+    """E_RMS over every grid point of ``out``'s mesh with vertex values ``fitted``."""
+    from trivsel.decimation.blocked import point_weights
+
+    verts, w = point_weights(vol.shape, out["tets"], out["ptet"])
+    col = np.full(vol.size, -1)
+    col[out["vertices"]] = np.arange(len(out["vertices"]))
+    return float(np.sqrt(np.mean((vol.reshape(-1) - np.einsum("ij,ij->i", w, fitted[col[verts]])) ** 2)))
+
+
+@pytest.fixture(scope="module")
+def ridge_in_blocks():
+    """A volume with a ridge, decimated in blocks of 8 to 8 %, and its whole mesh's least-squares fit."""
+    from trivsel.decimation.blocked import point_weights
+    from trivsel.fitting import fit_vertex_values
+
+    vol = smooth_volume((29, 26, 25), seed=5)
+    out = decimate_in_blocks(vol, 8, fraction=0.08)
+    verts, w = point_weights(vol.shape, out["tets"], out["ptet"])
+    whole, _ = fit_vertex_values(verts, w, vol.reshape(-1), out["vertices"])
+    return vol, out, whole
+
+
+def test_every_grid_point_has_one_tile():
+    """A point on a cut belongs to the block above it, the last cut to the last block."""
+    cuts = (np.array([0, 4, 9]), np.array([0, 3]), np.array([0, 5, 10, 12]))
+    i = np.array([0, 3, 4, 8, 9, 9])
+    j = np.array([0, 3, 1, 2, 0, 3])
+    k = np.array([0, 4, 5, 10, 12, 11])
+    assert tile_of((i, j, k), cuts).tolist() == [0, 0, 4, 5, 5, 5]
+
+
+def test_the_tile_fit_is_the_whole_mesh_fit_to_its_rings(ridge_in_blocks):
+    """Solved tile by tile, with three rings of tetrahedra around each tile, the fit's E_RMS is
+    the whole mesh's least-squares fit's within a part in a million (never below it: that one
+    is the least); without rings, the tiles' seams cost a part in a hundred."""
+    vol, out, whole = ridge_in_blocks
+    cuts = [block_cuts(n, 8) for n in vol.shape]
+    best = _fit_rms(vol, out, whole)
+    tiled = tile_fit(vol.shape, cuts, out["tets"], out["ptet"], out["vertices"], vol.reshape(-1))
+    bare = tile_fit(vol.shape, cuts, out["tets"], out["ptet"], out["vertices"], vol.reshape(-1), rings=0)
+    assert best * (1 - 1e-9) <= _fit_rms(vol, out, tiled) <= best * (1 + 1e-6)
+    assert _fit_rms(vol, out, bare) > best * (1 + 1e-3)
+
+
+def test_a_tile_fit_of_one_tile_is_the_whole_mesh_fit(ridge_in_blocks):
+    """With one tile (every vertex an unknown of one solve) the values are the whole mesh's fit,
+    to the solver's tolerance."""
+    vol, out, whole = ridge_in_blocks
+    cuts = [np.array([0, n - 1]) for n in vol.shape]
+    one = tile_fit(vol.shape, cuts, out["tets"], out["ptet"], out["vertices"], vol.reshape(-1))
+    assert np.allclose(one, whole, rtol=0, atol=1e-8 * np.abs(whole).max())

@@ -266,19 +266,6 @@ def fit_vertex_values(verts, weights, values, vertices):
     return fitted, residuals
 
 
-def fit_in_chunks(point_chunks, n_points, vertices, start):
-    """Least-squares vertex values (:func:`fit_vertex_values`) without the points' weights in
-    memory at once: ``point_chunks()`` yields, chunk by chunk of points, ``(verts, weights,
-    values)`` as :func:`fit_vertex_values` takes them whole; ``start``, the values at
-    ``vertices`` the conjugate gradients start from.  Returns the fitted values at ``vertices``."""
-    vertices = np.asarray(vertices, np.int64)
-    col = _column_map(n_points, vertices)
-    K, b = _normal_equations(((*_chunk(v, w, col, 0, len(w)), np.asarray(f, float)) for v, w, f in point_chunks()),
-                             len(vertices))
-    fitted, _ = solve_normal_equations(K, b, start)
-    return fitted
-
-
 def fit_on_mesh(mesh, values, interior):
     """A snapshot's ``fit``: least-squares values on ``mesh`` (anything with
     ``point_weights()`` and ``vertices()``: :class:`trivsel.mesh.TetMesh`,

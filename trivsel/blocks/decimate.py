@@ -619,7 +619,7 @@ def _region_apply(out, st, p, slab):
 def _finish(out, st):
     """The merged mesh, its errors (and fitted values), one piece per block, the summary.  The
     points' weights and residuals are computed in chunks, never for every point at once."""
-    from ..fitting import CHUNK, fit_in_chunks
+    from ..fitting import CHUNK
     from ..io.pieces import write_pvtu
     from ..norms import ErrorSums
     from . import RESULTS, STAGED
@@ -642,19 +642,12 @@ def _finish(out, st):
             yield idx, *got[:2], got[2] if values is not None else None, np.all((ijk > 0) & (ijk < hi), axis=1)
 
     data_sums = ErrorSums()
-
-    def summed():  # the data values' errors (as the kernels computed them), summed on the way through the points
-        for idx, verts, w, value, inner in chunks(f):
-            data_sums.add(f[idx] - value, inner)
-            yield idx, verts, w
-
-    values = list(cfg.get("values") or ["data"])
-    walk, fitted = summed(), None
-    if "fit" in values:  # the fit's sums and the data errors in one walk through the points
-        fitted = fit_in_chunks(lambda: ((v, w, f[i]) for i, v, w in walk), N, vertices, f[vertices])
-    for _ in walk:  # (without a fit)
-        pass
+    for idx, _, _, value, inner in chunks(f):  # the data values' errors, as the kernels computed them
+        data_sums.add(f[idx] - value, inner)
     errors = data_sums.norms()
+    values = list(cfg.get("values") or ["data"])
+    # the fit tile by tile, each tile's solve bounded by the tile and its rings
+    fitted = B.tile_fit(plan.shape, plan.cuts, T, owner, vertices, f) if "fit" in values else None
     fit = None
     if fitted is not None:
         fit_sums = ErrorSums()
