@@ -9,7 +9,8 @@ the box (:func:`trivsel.blocks.check_tetrahedra`) with every point inside its te
 (barycentric weights from integer determinants, all >= 0); then the unblocked run
 (:func:`trivsel.decimation.reduce_by_collapse`) at the blocked run's vertex count.  Prints the
 ratios blocked / unblocked of E_RMS with data values, E_RMS with fitted values (least squares
-on each mesh, :func:`trivsel.fitting.fit_vertex_values`) and E_inf with data values, and the
+on each mesh: the blocked one tile by tile, :func:`trivsel.decimation.blocked.tile_fit`, as the
+blocked paths fit it) and E_inf with data values, and the
 seconds of both.  ``t1`` is the central crop of the ICBM152 2009a T1 (nilearn's wheel: the
 ``realdata`` extra), ``gm`` the same crop of the template's grey-matter probability map (a
 signal of another kind: smooth, with bands of steep change), ``f4`` the paper's function 4
@@ -116,14 +117,18 @@ def blocked(vol, block, **stop):
 def compare(name, vol, block, fraction):
     from trivsel.data import grid_from_array
     from trivsel.decimation import reduce_by_collapse
-    from trivsel.fitting import fit_vertex_values
+    from trivsel.decimation.blocked import block_list, tile_fit
     from trivsel.norms import error_norms
 
     data = grid_from_array(vol)
     interior = data.interior_mask()
     f = vol.reshape(-1).astype(float)
     out, tb, verts, w, r = blocked(vol, block, fraction=fraction)
-    _, rf = fit_vertex_values(verts, w, f, out["vertices"])
+    # fitted as the blocked paths fit: tile by tile
+    col = np.full(len(f), -1)
+    col[out["vertices"]] = np.arange(len(out["vertices"]))
+    fitted = tile_fit(vol.shape, block_list(vol.shape, block)[0], out["tets"], out["ptet"], out["vertices"], f)
+    rf = f - np.einsum("ij,ij->i", w, fitted[col[verts]])
     C = len(out["vertices"])
     t = time.perf_counter()
     shots, *_ = reduce_by_collapse(data, [C], values=("data", "fit"))
