@@ -493,16 +493,17 @@ def slurm_blocks_command(out):
 
 
 @contextlib.contextmanager
-def background_run(cmd, log):
-    """`trivsel blocks` ``cmd`` started in a session of its own, its output in ``log``; if it still
-    runs on the way out (a check failed), it is killed and the SLURM jobs of its folder cancelled."""
+def background_run(cmd, log, env=None):
+    """`trivsel blocks` ``cmd`` started in a session of its own (environment ``env``, default this
+    one's), its output in ``log``; if it still runs on the way out (a check failed), it is killed and
+    the SLURM jobs of its folder cancelled."""
     import os
     import signal
 
     from trivsel.blocks.slurm import active_jobs, job_prefix
 
     with open(log, "w") as fh:
-        proc = subprocess.Popen(cmd, stdout=fh, stderr=fh, start_new_session=True)
+        proc = subprocess.Popen(cmd, stdout=fh, stderr=fh, start_new_session=True, env=env)
     try:
         yield proc
     finally:
@@ -559,6 +560,80 @@ def test_slurm_cancelled_job_ends_the_run_and_a_rerun_completes(tmp_path, slurm)
     local = run_blocks(tmp_path / "local", "-c", "2")
     assert local.returncode == 0, local.stderr[-3000:]
     assert result_files(out) == result_files(tmp_path / "local")
+
+
+def processes_in(folder):
+    """``{pid: command line}`` of the live processes working in ``folder`` (their current folder:
+    Snakemake's and the jobs' in a run's folder)."""
+    import os
+    from pathlib import Path
+
+    found = {}
+    for p in Path("/proc").iterdir():
+        try:
+            if p.name.isdigit() and os.readlink(p / "cwd") == str(folder) and (p / "stat").read_text().rsplit(
+                    ")", 1)[1].split()[0] != "Z":
+                found[int(p.name)] = (p / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:  # ended meanwhile, or not ours to read
+            pass
+    return found
+
+
+#: Put on the jobs' PYTHONPATH: the kernels job of a run holds SIGTERM for a minute before it
+#: starts, as a job inside a long compiled kernel does (Python acts on a signal only between
+#: bytecodes), after writing ``held`` in its folder.
+HOLD_SIGTERM = """
+import os, signal, sys, time
+if sys.orig_argv[1:4] in (["-m", "trivsel.blocks", "kernels"], ["-m", "trivsel.blocks.decimate", "kernels"]):
+    signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGTERM})
+    open("held", "w").close()
+    time.sleep(60)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGTERM})
+"""
+
+
+@pytest.mark.slurm
+def test_slurm_cancelled_job_leaves_no_process(tmp_path, slurm):
+    """A job cancelled while its process cannot take SIGTERM (held for a minute, as in a long
+    compiled kernel): SLURM kills it KillWait seconds later, and the Snakemake of the job's batch
+    script ends with the script, so when the run has ended, no process of the run is left.  (Under
+    proctrack/linuxproc, SLURM sends SIGKILL only to the processes descended from the job's
+    slurmstepd: a process whose parent shell died of the SIGTERM would be left.)"""
+    import os
+    import signal
+    import time
+
+    from trivsel.blocks.slurm import active_jobs, job_prefix
+
+    hook = tmp_path / "hook"
+    hook.mkdir()
+    (hook / "sitecustomize.py").write_text(HOLD_SIGTERM)
+    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(hook), *filter(None, [os.environ.get("PYTHONPATH")])]))
+    out = tmp_path / "slurm"
+    cmd = slurm_blocks_command(out)
+    prefix = job_prefix(out)
+    log = tmp_path / "run.log"
+    left = {}
+    try:
+        with background_run(cmd + ["--retries", "0"], log, env=env) as proc:
+            deadline = time.time() + 300
+            while not (out / "held").exists() and time.time() < deadline and proc.poll() is None:
+                time.sleep(0.2)
+            running = [i for i, state in active_jobs(prefix) if state == "RUNNING"]
+            assert (out / "held").exists() and running, log.read_text()[-5000:]
+            subprocess.run(["scancel", *running], check=True, timeout=60)
+            proc.wait(timeout=240)
+        lines = log.read_text().splitlines()
+        assert proc.returncode not in (0, None) and "ended CANCELLED" in lines[-1], lines[-40:]
+        assert not active_jobs(prefix)
+        end = time.time() + 5  # the last job processes exit as Snakemake does
+        while (left := processes_in(out)) and time.time() < end:
+            time.sleep(0.2)
+        assert not left, left
+    finally:
+        for pid in processes_in(out):
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
 
 
 @pytest.mark.slurm

@@ -15,11 +15,21 @@
 # blocks' costs; step, quota and finish hold arrays over the whole grid (a few bytes a point),
 # never a decimation of it.  The rules run
 # in the Python environment that runs Snakemake.
+# Each command execs the job's Python in place of the shell, so the job's process is Snakemake's
+# child: a cluster that finds a job's processes by their parents (SLURM's proctrack/linuxproc)
+# still finds it after a cancellation's SIGTERM, which kills the shell at once, and kills it
+# after its grace time; a job busy in a compiled kernel would otherwise run on outside its job.
 
+import os
 import sys
 
 from trivsel.blocks import item_name, read_config
 from trivsel.blocks.decimate import Stages, job_resources
+from trivsel.blocks.slurm import end_with_parent
+
+# the Snakemake of a SLURM job's batch script (a job step's has SLURM_STEP_ID) ends with the script
+if workflow.remote_exec and "SLURM_JOB_ID" in os.environ and "SLURM_STEP_ID" not in os.environ:
+    end_with_parent()
 
 CFG, PLAN = read_config(".")
 ST = Stages(CFG, PLAN)
@@ -71,7 +81,7 @@ rule kernels:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate kernels . > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate kernels . > {log} 2>&1"
 
 
 rule costs:
@@ -88,7 +98,7 @@ rule costs:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate costs . {wildcards.slab} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate costs . {wildcards.slab} > {log} 2>&1"
 
 
 rule cut:
@@ -106,7 +116,7 @@ rule cut:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate cut . > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate cut . > {log} 2>&1"
 
 
 rule mesh:
@@ -124,7 +134,7 @@ rule mesh:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate mesh . {wildcards.slab} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate mesh . {wildcards.slab} > {log} 2>&1"
 
 
 # one step per pass: its region inputs, one file per x-slab of its region grid (known from the plan)
@@ -149,7 +159,7 @@ for _p in PASSES:
             py=PY,
             p=_p,
         shell:
-            "'{params.py}' -m trivsel.blocks.decimate step . {params.p} > {log} 2>&1"
+            "exec '{params.py}' -m trivsel.blocks.decimate step . {params.p} > {log} 2>&1"
 
 
 rule rcosts:
@@ -167,7 +177,7 @@ rule rcosts:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate rcosts . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate rcosts . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
 
 
 rule quota:
@@ -185,7 +195,7 @@ rule quota:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate quota . {wildcards.p} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate quota . {wildcards.p} > {log} 2>&1"
 
 
 rule apply:
@@ -205,7 +215,7 @@ rule apply:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate apply . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate apply . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
 
 
 rule finish:
@@ -223,4 +233,4 @@ rule finish:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks.decimate finish . > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks.decimate finish . > {log} 2>&1"

@@ -61,6 +61,26 @@ def cancel_jobs(prefix, *, wait=60.0):
     return ids
 
 
+def end_with_parent():
+    """In the Snakemake process that a SLURM job's batch script runs: be killed (SIGKILL) when the
+    script's shell ends first (``PR_SET_PDEATHSIG``, Linux; elsewhere nothing).  A cancellation's
+    SIGTERM kills the shell at once, while Snakemake waits for its running job; adopted by init, it
+    is no longer below the job's ``slurmstepd``, where a SLURM that finds a job's processes by their
+    parents (``proctrack/linuxproc``) looks for what to kill, so if it waits on (for a job it still
+    counts as running), nothing ends it.  Otherwise the shell waits for it, so the signal comes only
+    when the job is being ended."""
+    import ctypes
+    import os
+    import signal
+
+    try:
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
+    except (OSError, AttributeError):
+        return
+    if os.getppid() == 1:  # the parent ended before the line above
+        os.kill(os.getpid(), signal.SIGKILL)
+
+
 def failed_jobs(prefix, since):
     """``[(job id, state, comment)]`` of the jobs named ``prefix_*`` submitted at or after
     ``since`` (seconds since the epoch) that ended without success, in submission order."""

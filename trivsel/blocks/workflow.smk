@@ -2,6 +2,10 @@
 #
 # The rules run in the Python environment that runs Snakemake (`trivsel blocks` starts it with
 # its own interpreter), where trivsel is installed: no conda environment of their own.
+# Each command execs the job's Python in place of the shell, so the job's process is Snakemake's
+# child: a cluster that finds a job's processes by their parents (SLURM's proctrack/linuxproc)
+# still finds it after a cancellation's SIGTERM, which kills the shell at once, and kills it
+# after its grace time; a job busy in a compiled kernel would otherwise run on outside its job.
 #
 # Written and run by `trivsel blocks`, in the run's folder (snakemake --directory OUT), which
 # holds blocks.json (the configuration and the plan).  Every job reads the region of the
@@ -16,9 +20,15 @@
 # per plane and per block (rules plane and block).  The kernels and the three line jobs form
 # one cluster job (group "lines").
 
+import os
 import sys
 
 from trivsel.blocks import block_faces, item_name, job_batches, job_resources, parse_item, read_config
+from trivsel.blocks.slurm import end_with_parent
+
+# the Snakemake of a SLURM job's batch script (a job step's has SLURM_STEP_ID) ends with the script
+if workflow.remote_exec and "SLURM_JOB_ID" in os.environ and "SLURM_STEP_ID" not in os.environ:
+    end_with_parent()
 
 CFG, PLAN = read_config(".")
 PY = sys.executable
@@ -73,7 +83,7 @@ rule kernels:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks kernels . > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks kernels . > {log} 2>&1"
 
 
 rule lines:
@@ -93,7 +103,7 @@ rule lines:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks lines . {wildcards.axis} > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks lines . {wildcards.axis} > {log} 2>&1"
 
 
 # one job per plane and per block (a local run, or a cluster run asked for it)
@@ -114,7 +124,7 @@ if PLANES_PER_JOB <= 1:
         params:
             py=PY,
         shell:
-            "'{params.py}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
+            "exec '{params.py}' -m trivsel.blocks plane . {wildcards.plane} > {log} 2>&1"
 
 
 if BLOCKS_PER_JOB <= 1:
@@ -135,7 +145,7 @@ if BLOCKS_PER_JOB <= 1:
         params:
             py=PY,
         shell:
-            "'{params.py}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
+            "exec '{params.py}' -m trivsel.blocks block . {wildcards.block} > {log} 2>&1"
 
 
 # one cluster job per batch of planes and of blocks, each reduced in one process
@@ -168,7 +178,7 @@ for _kind, _items, _per_job, _inputs, _outputs in (
                 kind=_kind,
                 names=" ".join(item_name(x) for x in _batch),
             shell:
-                "'{params.py}' -m trivsel.blocks {params.kind} . {params.names} > {log} 2>&1"
+                "exec '{params.py}' -m trivsel.blocks {params.kind} . {params.names} > {log} 2>&1"
 
 
 rule merge:
@@ -187,4 +197,4 @@ rule merge:
     params:
         py=PY,
     shell:
-        "'{params.py}' -m trivsel.blocks merge . > {log} 2>&1"
+        "exec '{params.py}' -m trivsel.blocks merge . > {log} 2>&1"
