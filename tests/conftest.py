@@ -85,6 +85,35 @@ def sacct_rows(ids, fields, tries=60):
     return rows
 
 
+def made_once(tmp_path_factory, name, make):
+    """The folder ``name`` that ``make(folder)`` fills, made once for the whole test run and
+    shared by the tests that only read it (or copy it).  Under pytest-xdist the workers' base
+    folders sit side by side in the run's own: the first worker to ask makes the folder there
+    while holding a lock, and the others wait for it and then read the same folder.  A
+    ``make`` that fails leaves no mark, so the next test to ask tries again (and fails the
+    same way)."""
+    import shutil
+
+    try:
+        import fcntl
+    except ImportError:  # no flock(2): each worker makes its own
+        fcntl = None
+    root = tmp_path_factory.getbasetemp()
+    if fcntl is not None and os.environ.get("PYTEST_XDIST_WORKER"):
+        root = root.parent
+    folder, done = root / name, root / f"{name}.done"
+    with open(root / f"{name}.lock", "w") as lock:
+        if fcntl is not None:
+            fcntl.flock(lock, fcntl.LOCK_EX)
+        if not done.exists():
+            if folder.exists():
+                shutil.rmtree(folder)
+            folder.mkdir()
+            make(folder)
+            done.write_text("")
+    return folder
+
+
 def load_benchmark_script(name):
     """A script of benchmarks/ as a module (they are not a package)."""
     import importlib.util

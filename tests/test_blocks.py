@@ -11,6 +11,7 @@ import sys
 import numpy as np
 import pytest
 
+from conftest import made_once
 from trivsel import reduce
 from trivsel.blocks import (Plan, check_tetrahedra, item_name, merge_blocks, plan_blocks, read_config,
                             reduce_in_blocks, run_job, write_config)
@@ -226,8 +227,19 @@ def result_files(out):
     return files
 
 
+@pytest.fixture
+def run_on_two_cores(tmp_path_factory):
+    """The folder of ``run_blocks(out, "-c", "2")``, which two tests compare with runs of their
+    own: made once for the whole test run (conftest.made_once), read only."""
+    def make(folder):
+        r = run_blocks(folder / "out", "-c", "2")
+        assert r.returncode == 0, r.stderr[-3000:]
+
+    return made_once(tmp_path_factory, "blocks-c2", make) / "out"
+
+
 @pytest.mark.slow
-def test_workflow_same_result_for_any_number_of_jobs_and_after_a_kill(tmp_path):
+def test_workflow_same_result_for_any_number_of_jobs_and_after_a_kill(tmp_path, run_on_two_cores):
     import os
     import signal
     import time
@@ -236,10 +248,8 @@ def test_workflow_same_result_for_any_number_of_jobs_and_after_a_kill(tmp_path):
 
     r1 = run_blocks(tmp_path / "c1", "-c", "1")
     assert r1.returncode == 0, r1.stderr[-3000:]
-    r2 = run_blocks(tmp_path / "c2", "-c", "2")
-    assert r2.returncode == 0, r2.stderr[-3000:]
     one = result_files(tmp_path / "c1")
-    assert one == result_files(tmp_path / "c2")
+    assert one == result_files(run_on_two_cores)
 
     summary = json.loads(one["summary.json"])
     assert summary["E_inf"] <= 0.01 and summary["blocks"] == 8
@@ -334,7 +344,7 @@ def test_group_components_batch_small_jobs(n, block, planes, blocks):
 
 
 @pytest.mark.slow
-def test_batched_jobs_give_the_result_of_one_job_per_plane_and_block(tmp_path):
+def test_batched_jobs_give_the_result_of_one_job_per_plane_and_block(tmp_path, run_on_two_cores):
     """Planes and blocks reduced several to a job, one after the other in one process (the
     rules a cluster run gets, here asked for on a local run), write what one job per plane
     and per block writes; batches of consecutive items, the last one shorter."""
@@ -342,15 +352,13 @@ def test_batched_jobs_give_the_result_of_one_job_per_plane_and_block(tmp_path):
 
     assert job_batches(range(7), 3) == [[0, 1, 2], [3, 4, 5], [6]]
     assert job_batches(range(2), 0) == [[0], [1]]
-    one = run_blocks(tmp_path / "one", "-c", "2")
-    assert one.returncode == 0, one.stderr[-3000:]
     # 9 planes of 17^2 points, 8 blocks of 9^3 points: 3 planes and 2 blocks a job, evened out
     batched = run_blocks(tmp_path / "batched", "-c", "2", "--job-points", str(4 * 17 * 17 - 1))
     assert batched.returncode == 0, batched.stderr[-3000:]
     rules = set(re.findall(r"^(?:local)?rule (\w+):$", batched.stdout + batched.stderr, flags=re.M))
     assert {"planes_0", "planes_1", "planes_2", "blocks_0", "blocks_1", "blocks_2"} <= rules, rules
     assert not rules & {"plane", "block"}, rules
-    assert result_files(tmp_path / "batched") == result_files(tmp_path / "one")
+    assert result_files(tmp_path / "batched") == result_files(run_on_two_cores)
 
 
 def test_a_batch_names_the_item_that_failed(tmp_path, monkeypatch, capsys):

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from conftest import made_once
 from trivsel.blocks import check_tetrahedra
 from trivsel.cli import main
 from trivsel.data import sample_grid
@@ -31,17 +32,18 @@ def _same_tets(a, b):
 
 
 # The run of four tests that rerun some of its jobs in process: f4, n 40, blocks of 16, to a count
-# of 3000, its temporary files kept.  It is made once per module and worker; each test gets a
-# copy of its folder (the jobs name their files relative to it), so that a job one test reruns
-# or a file it changes reaches no other test.
+# of 3000, its temporary files kept.  It is made once for the whole test run (whichever worker
+# asks first; conftest.made_once); each test gets a copy of its folder (the jobs name their
+# files relative to it), so that a job one test reruns or a file it changes reaches no other test.
 _COUNTED_RUN = ["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000"]
 
 
 @pytest.fixture(scope="module")
 def _counted_run(tmp_path_factory):
-    out = tmp_path_factory.mktemp("counted") / "run"
-    assert main(_COUNTED_RUN + ["--out", str(out), "-c", "2", "--", "--notemp"]) == 0
-    return out
+    def make(folder):
+        assert main(_COUNTED_RUN + ["--out", str(folder / "run"), "-c", "2", "--", "--notemp"]) == 0
+
+    return made_once(tmp_path_factory, "counted", make) / "run"
 
 
 @pytest.fixture
