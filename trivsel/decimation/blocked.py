@@ -1010,13 +1010,13 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS):
     A tile is a block of ``cuts`` (:func:`tile_of`).  Its unknowns are its own vertices and
     those of ``rings`` rings of tetrahedra around them; its equations are the grid points in
     the tetrahedra that have an unknown vertex, and the unknown vertices themselves; the
-    vertices beyond the rings keep their data values there.  The rings are looked for among
-    the tetrahedra whose lowest corner lies within ``rings + 1`` times the longest
-    tetrahedron's extent below the tile and ``rings`` times above it: no ring reaches
-    further.  Each tile keeps the values of its own
-    vertices only, so every vertex has one value, and neighbouring tiles agree on the seams
-    by construction.  The rings make the difference to the whole mesh's fit vanish: the
-    influence of a fixed value decays by several times each ring (:data:`FIT_RINGS`).
+    vertices beyond the rings keep their data values there.  No solve reaches past the tile
+    widened by half its size on each side (at least :data:`FIT_MARGIN` intervals): beyond
+    that, vertices stay fixed and points give no equation, which bounds a tile's solve where
+    the tetrahedra are large.  Each tile keeps the values of its own vertices only, so every
+    vertex has one value, and neighbouring tiles agree on the seams by construction.  The
+    rings make the difference to the whole mesh's fit vanish: the influence of a fixed value
+    decays by several times each ring (:data:`FIT_RINGS`).
 
     Parameters
     ----------
