@@ -48,7 +48,7 @@ def test_ahead_of_time_kernels_give_numbas_results_to_the_bit(monkeypatch, fn, n
     monkeypatch.setenv("TRIVSEL_AOT", "0")
     dec, numbas = _run(data, key, lock, tol_inf)
     assert not isinstance(dec._k, type(aot))
-    assert hasattr(dec._k.run, "signatures")  # numba's dispatcher
+    assert aot.is_jit(dec._k)  # numba's own kernels
     _same(ours, numbas)
 
 
@@ -114,7 +114,7 @@ def test_a_failed_build_falls_back_to_numba_once_and_is_tried_again_by_compile(m
     with caplog.at_level(logging.INFO, logger="trivsel"):
         dec = dm.Decimation(data.ijk, data.shape, data.values)
     assert len(calls) == 1
-    assert hasattr(dec._k.run, "signatures")  # numba's kernels
+    assert aot.is_jit(dec._k)  # numba's own kernels
     assert "could not compile trivsel.decimation.collapse ahead of time (command 'gcc' failed" in caplog.text
     failed = list(tmp_path.glob("trivsel-aot/*.failed"))
     assert len(failed) == 1 and "gcc" in failed[0].read_text()
@@ -133,7 +133,7 @@ def test_no_c_compiler_is_found_before_any_compiling(monkeypatch, tmp_path, capl
     data = sample_grid(4, 6)
     with caplog.at_level(logging.WARNING, logger="trivsel"):
         dec = dm.Decimation(data.ijk, data.shape, data.values)
-    assert hasattr(dec._k.run, "signatures")
+    assert aot.is_jit(dec._k)
     assert "no C compiler: 'no-such-compiler-for-trivsel' not found" in caplog.text
     assert dec.run(20) == 0
 
@@ -147,7 +147,7 @@ def test_a_damaged_module_is_not_loaded(monkeypatch, tmp_path, caplog):
     path.write_bytes(b"\x7fELF not really")
     with caplog.at_level(logging.WARNING, logger="trivsel"):
         dec = dm.Decimation(data.ijk, data.shape, data.values)
-    assert hasattr(dec._k.run, "signatures")
+    assert aot.is_jit(dec._k)
     assert f"could not load {path}" in caplog.text
     assert dec.run(20) == 0
 
@@ -248,6 +248,33 @@ def test_switched_off(monkeypatch, env):
     monkeypatch.delenv("TRIVSEL_AOT", raising=False)
     monkeypatch.delenv("NUMBA_DISABLE_JIT", raising=False)
     assert aot.enabled()
+
+
+def test_numbas_kernels_announce_a_compile_when_one_not_in_its_cache_is_called(monkeypatch, caplog):
+    """With numba's own kernels, the compile notice comes with the first call of a kernel that
+    numba's cache does not hold, once a process: a run that calls only cached kernels says
+    nothing, although others of the library (that it never calls) are not in the cache."""
+    calls = []
+
+    def kernel(name):
+        def fn(*args):
+            calls.append(name)
+            return len(args)
+        fn.py_func = fn  # as a numba dispatcher has
+        return fn
+
+    exports = {name: (kernel(name), (name,)) for name in ("init", "run", "weights", "replay")}
+    monkeypatch.setattr(aot, "_exports", lambda module, state, variant: exports)
+    monkeypatch.setattr(aot, "in_cache", lambda fn, sig: sig[0] in ("init", "run"))
+    monkeypatch.setattr(aot, "compiled", [])
+    k = aot._jit("trivsel.decimation.collapse", None)
+    with caplog.at_level(logging.WARNING, logger="trivsel"):
+        assert k.init(1, 2) == 2 and k.run() == 0
+        assert aot.compiled == [] and not caplog.records
+        assert k.weights(1) == 1 and k.replay(1) == 1 and k.weights(2) == 1
+    assert aot.compiled == ["decimation"] and len(caplog.records) == 1
+    assert "compiling the decimation kernels once" in caplog.records[0].getMessage()
+    assert calls == ["init", "run", "weights", "replay", "weights"] and aot.is_jit(k)
 
 
 def test_the_cache_directory_follows_numbas(monkeypatch, tmp_path):
@@ -351,7 +378,6 @@ def test_insertion_kernels_ahead_of_time_give_numbas_results_to_the_bit(monkeypa
     loaded.clear()
     numbas = _mesh_run(method, fn, n, kw)
     assert loaded and all(aot.is_jit(k) for k in loaded)
-    assert hasattr(loaded[0].swap, "signatures")  # numba's dispatcher
     assert len(ours) == len(numbas)
     for a, b in zip(ours, numbas):
         assert np.array_equal(a, b)

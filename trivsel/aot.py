@@ -229,12 +229,27 @@ def in_cache(fn, sig) -> bool:
 
 def _jit(module, state, variant=None):
     exports = _exports(module, state, variant)
-    if hasattr(next(iter(exports.values()))[0], "py_func") and not all(in_cache(e[0], e[1])
-                                                                       for e in exports.values()):
-        compile_notice(_label(module, variant))  # numba compiles them on their first call
     ns = types.SimpleNamespace(**{k: e[0] for k, e in exports.items()})
+    if hasattr(next(iter(exports.values()))[0], "py_func"):
+        # numba compiles a kernel on its first call, and a run calls only some of them: the
+        # notice comes with the first call of one that numba's cache does not hold
+        what = _label(module, variant)
+        for name, e in exports.items():
+            if not in_cache(e[0], e[1]):
+                setattr(ns, name, _announced(e[0], what))
     ns.JIT = True  # numba's own kernels, not an extension module
     return ns
+
+
+def _announced(kernel, what):
+    """``kernel`` (numba's, not in its cache yet), which says that the kernels of ``what`` are
+    being compiled (:func:`compile_notice`, once a process) when it is first called."""
+    def call(*args):
+        if what not in compiled:
+            compile_notice(what)
+        return kernel(*args)
+
+    return call
 
 
 def is_jit(kernels_) -> bool:
