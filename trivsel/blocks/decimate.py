@@ -659,14 +659,7 @@ def _finish(out, st):
         fit = {"values": fitted, "errors": fit_sums.norms()}
     staged = out / STAGED
     # one piece per block: the tetrahedra whose lowest corner lies in it
-    corner = np.unravel_index(T.min(axis=1), plan.shape)
-    piece_of = np.zeros(len(T), B.index_type(len(plan.blocks())))
-    for a in range(3):
-        cuts = np.asarray(plan.cuts[a])
-        piece_of *= plan.counts[a]
-        piece_of += np.clip(np.searchsorted(cuts, corner[a], side="right") - 1, 0, plan.counts[a] - 1).astype(
-            piece_of.dtype)
-    del corner
+    piece_of = B.tile_of(np.unravel_index(T.min(axis=1), plan.shape), plan.cuts)
     fit_at = None if fit is None else (vertices, fit["values"])
     pieces = []
     order = np.argsort(piece_of, kind="stable")

@@ -982,8 +982,8 @@ def point_weights_of(shape, tets, ptet, points, values=None):
 
 
 #: Rings of tetrahedra around a tile whose vertices its least-squares fit solves for beside
-#: its own (:func:`tile_fit`).  On the T1 crop at 65^3 to 5 % in tiles of 16, the fit's E_RMS
-#: is 1.0068, 1.00024, 1.000005 and 1.0000000 times the whole mesh's with 0, 1, 2 and 3 rings.
+#: its own (:func:`tile_fit`): the difference to the whole mesh's fit falls by several times a
+#: ring, and three make it vanish (``docs/notes/2026-12-07-tile-fit.md``).
 FIT_RINGS = 3
 #: The least margin, in grid intervals, by which a tile's solve reaches past the tile (half the
 #: tile's size where that is more): it bounds the solve where the rings' tetrahedra are large.
@@ -994,11 +994,11 @@ def tile_of(ijk, cuts):
     """The tile (block, C order) of each grid point (``ijk``: three int64 arrays): along each
     axis the block whose cuts enclose it, a point on a cut in the block above it (the last
     block takes the last cut).  Every point has exactly one tile."""
-    t = np.zeros(len(ijk[0]), np.int64)
+    t = np.zeros(len(ijk[0]), index_type(np.prod([len(c) - 1 for c in cuts])))
     for a in range(3):
         c = np.asarray(cuts[a], np.int64)
         t *= len(c) - 1
-        t += np.clip(np.searchsorted(c, ijk[a], side="right") - 1, 0, len(c) - 2)
+        t += np.clip(np.searchsorted(c, ijk[a], side="right") - 1, 0, len(c) - 2).astype(t.dtype)
     return t
 
 
