@@ -242,7 +242,7 @@ def job_peaks(size, block, fraction):
                 largest[kind] = (mb, item)
         print(f"| f4 {size}^3, blocks of {block}, {fraction:g} | kind | item | peak MB (/usr/bin/time) | seconds |")
         print("|---|---|---|---|---|")
-        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "finish"):
+        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "tiles", "fit", "pieces", "finish"):
             if kind not in largest:
                 continue
             item = largest[kind][1]
@@ -279,7 +279,7 @@ def requests(folders):
         state = folder / "passes" / "0" / "state.npz"
         tets = len(np.load(state)["T"]) if state.exists() else None
         points = json.loads((folder / "summary.json").read_text())["points"]
-        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "finish"):
+        for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "tiles", "fit", "pieces", "finish"):
             if kind in largest:
                 mb, item = largest[kind]
                 req = job_resources(cfg, plan, kind)[0]

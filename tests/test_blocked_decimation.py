@@ -456,13 +456,13 @@ def test_the_cli_writes_the_blocked_mesh_and_suggests_block_when_memory_is_short
     capsys.readouterr()
     assert not (tmp_path / "big").exists()
 
-    # 1025^3 points: decimate's step and last jobs hold the whole grid's arrays, more than any block
+    # 1025^3 points: decimate's step and tiles jobs hold the whole grid's arrays, more than any block
     # size leaves here; the refusal says what they need and names the bounded command that fits
     monkeypatch.setattr(resources, "available_bytes", lambda: 21 * 2**30)
     argv[4] = "1024"
     assert main(argv) == 2
     (err,) = capsys.readouterr().err.strip().splitlines()
-    named = re.fullmatch(r".*; decimate in blocks \((trivsel blocks .*)\) needs about (\d+) GiB for its finish job, "
+    named = re.fullmatch(r".*; decimate in blocks \((trivsel blocks .*)\) needs about (\d+) GiB for its tiles job, "
                          r"so run it where a job may have that much; here, in bounded memory: (trivsel blocks .*) "
                          r"\(blocks stop at an E_inf tolerance TOL; they run paper or greedy\)", err)
     assert named and int(named.group(2)) > 21, err
@@ -703,3 +703,46 @@ def test_a_tile_fit_of_one_tile_is_the_whole_mesh_fit(ridge_in_blocks):
     cuts = [np.array([0, n - 1]) for n in vol.shape]
     one = tile_fit(vol.shape, cuts, out["tets"], out["ptet"], out["vertices"], vol.reshape(-1))
     assert np.allclose(one, whole, rtol=0, atol=1e-8 * np.abs(whole).max())
+
+
+def test_a_tile_solved_from_its_neighbourhood_alone_is_the_whole_tile_fit(ridge_in_blocks):
+    """The mesh kept by tile (``mesh_tiles``): each tetrahedron and point in one tile.  Around
+    each tile, the box its solve may reach widened by the longest tetrahedron, read from the
+    tiles that meet it alone (``local_mesh``), holds exactly the whole mesh's tetrahedra in the
+    box and each point's tetrahedron where that lies in it; the tile's fit from that box alone,
+    as a grid of its own, is ``tile_fit``'s over the whole mesh, to the bit."""
+    from trivsel.decimation.blocked import fit_reach, local_mesh, mesh_tiles, tet_extent, tile_box, tiles_meeting
+
+    vol, out, _ = ridge_in_blocks
+    shape, T, ptet, f = vol.shape, out["tets"], out["ptet"], vol.reshape(-1)
+    cuts = [block_cuts(n, 8) for n in shape]
+    whole = tile_fit(shape, cuts, T, ptet, out["vertices"], f)
+    tiles = list(mesh_tiles(shape, cuts, T, ptet))
+    assert np.array_equal(np.sort(np.concatenate([r for _, r, _ in tiles])), np.arange(len(T)))
+    assert sum(len(o) for _, _, o in tiles) == vol.size and len(tiles) == np.prod([len(c) - 1 for c in cuts])
+    col = np.full(vol.size, -1)
+    col[out["vertices"]] = np.arange(len(out["vertices"]))
+    vtile = tile_of(np.unravel_index(out["vertices"], shape), cuts)
+    corners = np.stack(np.unravel_index(T, shape), axis=-1)
+    ext = tet_extent(shape, T)
+    assert ext == int(np.ptp(corners, axis=1).max())
+    for t in range(len(tiles)):
+        rlo, rhi = fit_reach(shape, cuts, t)
+        lo, hi = np.maximum(rlo - ext, 0), np.minimum(rhi + ext, np.array(shape) - 1)
+        tets, rows, lptet = local_mesh(shape, lo, hi, [(*tiles[u], *tile_box(shape, cuts, u))
+                                                       for u in tiles_meeting(cuts, lo, hi)])
+        dims = tuple(int(d) for d in hi - lo + 1)
+        ax = [np.arange(a, b + 1) for a, b in zip(lo, hi)]
+        ids = np.ravel_multi_index(np.meshgrid(*ax, indexing="ij"), shape).ravel()
+        inbox = np.all((corners >= lo) & (corners <= hi), axis=(1, 2))
+        assert np.array_equal(np.sort(rows), np.flatnonzero(inbox)) and np.array_equal(ids[tets], T[rows])
+        g = ptet[ids]
+        assert np.array_equal(lptet == -1, g < 0)
+        kept = lptet >= 0
+        assert np.array_equal(rows[lptet[kept]], g[kept]) and not np.isin(g[lptet == -2], rows).any()
+        cl = [np.asarray(c) - o for c, o in zip(cuts, lo)]
+        verts = np.flatnonzero(lptet == -1)
+        got = tile_fit(dims, cl, tets, lptet, verts, f[ids], tiles=[t])
+        own = tile_of(np.unravel_index(verts, dims), cl) == t
+        assert own.sum() == np.count_nonzero(vtile == t) and np.isnan(got[~own]).all()
+        assert np.array_equal(got[own], whole[col[ids[verts[own]]]])

@@ -31,11 +31,12 @@ def _same_tets(a, b):
     return np.array_equal(np.unique(np.sort(a, axis=1), axis=0), np.unique(np.sort(b, axis=1), axis=0))
 
 
-# The run of four tests that rerun some of its jobs in process: f4, n 40, blocks of 16, to a count
-# of 3000, its temporary files kept.  It is made once for the whole test run (whichever worker
+# The run of the tests that rerun some of its jobs in process: f4, n 40, blocks of 16, to a count
+# of 3000 with fitted values, its temporary files kept.  It is made once for the whole test run (whichever worker
 # asks first; conftest.made_once); each test gets a copy of its folder (the jobs name their
 # files relative to it), so that a job one test reruns or a file it changes reaches no other test.
-_COUNTED_RUN = ["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000"]
+_COUNTED_RUN = ["blocks", "--function", "4", "--n", "40", "--block", "16", "--method", "decimate", "--count", "3000",
+                "--values", "data", "fit"]
 
 
 @pytest.fixture(scope="module")
@@ -196,7 +197,7 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
     # a block job holds one block's decimation; a region job one region's (2 x 2 x 2 blocks), as dense
     # as the mesh after the blocks allows (every point a vertex without a count)
     five = {**full, "fraction": 0.05}
-    mb = {k: D.job_resources(five, plan, k)[0] for k in ("costs", "rcosts", "step", "finish")}
+    mb = {k: D.job_resources(five, plan, k)[0] for k in ("costs", "rcosts")}
     assert mb["costs"] < mb["rcosts"] < 2600 and mb["rcosts"] > 2000
     assert D.job_resources(full, plan, "rcosts")[0] > 2 * mb["rcosts"]
     assert D.job_resources({**five, "block": 32}, D.plan_decimation(plan.shape, 32), "rcosts")[0] < 800
@@ -207,11 +208,19 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
               for f in (0.05, 0.5)}
     assert 148 < region[0.05] < region[0.5] and 1.3 * 734 < region[0.5] < 2 * 734
     # the whole-grid jobs ask for the mesh the stop allows: f4 at 129^3 in blocks of 32 with fitted values
-    # peaked at 175 and 551 MB (step) and 279 and 1348 MB (finish) at 5 % and 50 % (docs/notes)
+    # peaked at 175 and 551 MB (step) at 5 % and 50 % (docs/notes)
     ask = {f: {k: D.job_resources({**full, "fraction": f, "plan": p129.to_dict()}, p129, k)[0]
-               for k in ("step", "finish")} for f in (0.05, 0.5)}
+               for k in ("step", "tiles", "fit", "pieces", "finish")} for f in (0.05, 0.5)}
     assert 175 < ask[0.05]["step"] < ask[0.5]["step"] and 551 < ask[0.5]["step"] < 2 * 551 + 400
-    assert 279 < ask[0.05]["finish"] < ask[0.5]["finish"] and 1348 < ask[0.5]["finish"] < 2 * 1348 + 400
+    assert all(ask[0.05][k] < ask[0.5][k] for k in ask[0.05])
+    # the last jobs, f4 in blocks of 32 with fitted values, each run alone under /usr/bin/time, peaked at
+    # 161 (tiles), 188 (fit), 85 (pieces) and 192 MB (finish) at 129^3 to 5 %, and at 345, 436, 149 and
+    # 287 MB at 97^3 to 50 % (docs/notes)
+    for (n, f), peak in {(128, 0.05): {"tiles": 161, "fit": 188, "pieces": 85, "finish": 192},
+                         (96, 0.5): {"tiles": 345, "fit": 436, "pieces": 149, "finish": 287}}.items():
+        pn = D.plan_decimation((n + 1,) * 3, 32)
+        got = {k: D.job_resources({**full, "block": 32, "fraction": f, "plan": pn.to_dict()}, pn, k)[0] for k in peak}
+        assert all(peak[k] < got[k] < 3 * peak[k] + 400 for k in peak), (n, got)
     alone = {k: D.job_resources({**full, "tol_rms": 1.0, "plan": p129.to_dict()}, p129, k)[0] for k in ask[0.5]}
     assert all(alone[k] >= ask[0.5][k] for k in alone)  # a tolerance alone: the whole grid's mesh
     # a dry run lists the jobs and writes nothing
@@ -232,7 +241,7 @@ def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, 
     full = {"block": 64, "fraction": 0.05, "values": ["data", "fit"], "plan": D.plan_decimation(shape, 64).to_dict()}
     st = D.Stages(full, D.plan_decimation(shape, 64))
     assert sorted(st.job_kinds()) == sorted(["kernels", "costs", "cut", "mesh", "step", "rcosts", "quota", "apply",
-                                             "finish"])
+                                             "tiles", "fit", "pieces", "finish"])
     mb = {k: D.job_resources(full, st.plan, k)[0] for k in st.job_kinds()}
     assert max(mb, key=mb.get) == "quota"
     avail = (max(v for k, v in mb.items() if k != "quota") + mb["quota"]) // 2 * 2**20  # all but quota fit
@@ -244,11 +253,12 @@ def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, 
     cfg48 = {**full, "block": 48, "plan": p48.to_dict()}
     assert all(D.job_resources(cfg48, p48, k)[0] * 2**20 <= avail for k in D.Stages(cfg48, p48).job_kinds())
     D.check_job_memory(cfg48)
-    # a tolerance alone has no cut or quota: its largest job is the last one, which no block size helps
+    # a tolerance alone has no cut or quota: its largest job keeps the whole grid's mesh by tile, which no
+    # block size helps
     tol = {**full, "fraction": None, "tol_inf": 1.0}
     assert "quota" not in D.Stages(tol, st.plan).job_kinds()
     monkeypatch.setattr(res, "available_bytes", lambda: 4 * 2**30)
-    with pytest.raises(InputError, match=r"^a finish job .* run it on a larger machine or a cluster$"):
+    with pytest.raises(InputError, match=r"^a tiles job .* run it on a larger machine or a cluster$"):
         D.check_job_memory(tol)  # the region jobs are larger here, but smaller blocks bring them down
     monkeypatch.setattr(res, "available_bytes", lambda: 6.5 * 2**30)
     with pytest.raises(InputError, match=r"^an apply job of decimate in blocks of 64 needs about 6.\d+ GiB, more than "
@@ -413,6 +423,60 @@ def test_region_and_quota_jobs_read_only_their_part_of_the_pass(counted_run, mon
     for name, z in before.items():
         now = D._load(folder / name)
         assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
+
+
+def test_the_last_jobs_read_only_the_tiles_around_their_own(counted_run, monkeypatch):
+    """After the last pass the mesh is kept by tile.  For each of its tiles, a ``fit`` job reads
+    the samples of the box the tile's solve may reach widened by the longest tetrahedron, a
+    ``pieces`` job those of the tile widened by it, and each reads only the tiles that meet
+    that box.  Run again while every read is recorded, they write the same files, byte for
+    byte, and the summary's errors are those of the merged mesh."""
+    from trivsel.blocks import decimate as D
+    from trivsel.blocks import read_config
+
+    out = counted_run
+    st = D.Stages(*read_config(out))
+    plan, shape = st.plan, np.asarray(st.plan.shape)
+    ext = json.loads((out / "tiles" / "mesh.json").read_text())["extent"]
+    assert 0 < ext < 2 * st.block
+    files = [f"{d}/{s}.npz" for d in ("fit", "sums") for s in st.slabs] + \
+        [f"pieces/{p.name}" for p in (out / "pieces").glob("*.vtu")]
+    before = {name: (out / name).read_bytes() for name in files}
+    boxes, read, job = [], [], [None]
+    read_box, getitem = D._read_box, np.lib.npyio.NpzFile.__getitem__
+    monkeypatch.setattr(D, "_read_box", lambda vol, lo, hi: boxes.append((job[0], lo, hi)) or read_box(vol, lo, hi))
+
+    def recorded(self, key):
+        read.append((job[0], Path(self.fid.name).parent.name, key))
+        return getitem(self, key)
+
+    monkeypatch.setattr(np.lib.npyio.NpzFile, "__getitem__", recorded)
+    for kind in ("fit", "pieces"):
+        for s in st.slabs:
+            job[0] = (kind, s)
+            D.run_job(out, kind, str(s))
+    monkeypatch.undo()
+    assert {name: (out / name).read_bytes() for name in files} == before
+    per = plan.counts[1] * plan.counts[2]
+    for kind in ("fit", "pieces"):
+        for s in st.slabs:
+            mine = [(lo, hi) for j, lo, hi in boxes if j == (kind, s)]
+            assert len(mine) == per  # one box a tile
+            for t, (lo, hi) in zip(range(s * per, (s + 1) * per), mine):
+                tlo, thi = D.B.fit_reach(plan.shape, plan.cuts, t) if kind == "fit" else D.B.tile_box(
+                    plan.shape, plan.cuts, t)
+                assert np.array_equal(lo, np.maximum(tlo - ext, 0)) and np.array_equal(hi, np.minimum(thi + ext,
+                                                                                                      shape - 1))
+            meets = {u for lo, hi in mine for u in D.B.tiles_meeting(plan.cuts, lo, hi)}
+            tiles = {int(key.split("_")[1]) for j, d, key in read if j == (kind, s) and d == "tiles"}
+            assert tiles and tiles <= meets
+    tets = D._load(out / "tiles" / "0.npz")
+    assert any(len(v) for k, v in tets.items() if k.startswith("tets_"))
+    m, ids, cells = _read(out / "mesh.vtu")
+    f = sample_grid(4, 40).values
+    s = json.loads((out / "summary.json").read_text())
+    assert s["tetrahedra"] == len(cells) and s["vertices"] == len(ids)
+    assert np.array_equal(np.asarray(m.point_data["value"]), f[ids])
 
 
 @pytest.mark.slurm

@@ -126,9 +126,9 @@ def test_chunks_that_do_not_match_what_was_announced_leave_no_file(tmp_path):
 
 
 def test_the_merged_mesh_is_the_same_file_in_chunks_or_whole(tmp_path):
-    """``_write_mesh`` renumbers a large mesh a chunk of rows at a time over a grid-sized index,
-    and a small one with ``np.unique``: the same file, byte for byte, with the vertices sorted
-    by the input's point id and every cell over the same grid points."""
+    """``_write_mesh`` renumbers a large mesh a chunk of rows at a time against its sorted
+    vertices, and a small one with ``np.unique``: the same file, byte for byte, with the
+    vertices sorted by the input's point id and every cell over the same grid points."""
     from trivsel.blocks.decimate import _write_mesh
     from trivsel.io.regions import open_volume
     from trivsel.triangulation import kuhn_tetrahedra
@@ -141,8 +141,9 @@ def test_the_merged_mesh_is_the_same_file_in_chunks_or_whole(tmp_path):
     f = d.values
     vertices = np.unique(tets)
     fit_at = (vertices, np.linspace(-1, 1, len(vertices)))
-    _write_mesh(tmp_path / "whole.vtu", vol, shape, tets, f, fit_at, chunk=len(tets))
-    _write_mesh(tmp_path / "chunks.vtu", vol, shape, tets, f, fit_at, chunk=97)
+    every = (np.arange(len(f)), f)  # values at more points than the corners: each takes its own
+    _write_mesh(tmp_path / "whole.vtu", vol, shape, tets, every, fit_at, chunk=len(tets))
+    _write_mesh(tmp_path / "chunks.vtu", vol, shape, tets, (vertices, f[vertices]), fit_at, chunk=97)
     assert (tmp_path / "whole.vtu").read_bytes() == (tmp_path / "chunks.vtu").read_bytes()
     points, conn, _, _, arrays, _ = _read(tmp_path / "chunks.vtu")
     named = dict(arrays)

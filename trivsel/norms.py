@@ -75,6 +75,19 @@ class ErrorSums:
         if ri.size:
             self.max_in = max(self.max_in, float(ri.max()))
 
+    def to_array(self):
+        """The sums as six numbers (``add_sums`` adds them to another's)."""
+        return np.array([self.sse, self.n, self.sse_in, self.n_in, self.max, self.max_in], np.float64)
+
+    def add_sums(self, sums):
+        """Add the sums of another chunk of residuals (an array of :meth:`to_array`)."""
+        sse, n, sse_in, n_in, mx, mx_in = (float(x) for x in sums)
+        self.sse += sse
+        self.n += int(n)
+        self.sse_in += sse_in
+        self.n_in += int(n_in)
+        self.max, self.max_in = max(self.max, mx), max(self.max_in, mx_in)
+
     def norms(self) -> dict:
         nan = float("nan")
         return {"E_rms": float(np.sqrt(self.sse / self.n)) if self.n else nan,

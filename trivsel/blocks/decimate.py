@@ -25,8 +25,15 @@ one stage hands the next is a file in the run's folder::
     passes/P/out/R.npz each region of slab R decimated (its recorded collapses up to its
                        quota, replayed): the points it removed, its new tetrahedra, the
                        points inside them
+    tiles/X.npz        after the last pass, the mesh kept by tile (a block of the plan) for
+                       x-slab X of tiles: each tile's tetrahedra (those whose lowest corner
+                       lies in it), their rows, and each of its points' tetrahedron;
+                       tiles/mesh.json the longest extent of a tetrahedron, the counts
+    fit/X.npz          the fitted values of the vertices of slab X's tiles (with ``fit``)
+    sums/X.npz         the errors at the points of slab X's tiles, as sums, and the tiles'
+                       vertices and values; beside it each tile's piece (pieces/)
     merged/            the last step: mesh.vtu (vertices sorted by the input's point id),
-                       one piece per block (pieces/, mesh.pvtu), summary.json
+                       mesh.pvtu over the pieces, summary.json
 
 A block job reads its blocks' samples, a region job its regions' points (the bounding box
 of each region's mesh) and of ``plan.npz`` only what names its regions (``PLAN_OF_REGIONS``);
@@ -35,15 +42,16 @@ regions one at a time: it reads each one's part of its input files (``_Members``
 its file one block or region at a time (``_atomic_savez_each``), so that its memory is that of
 one block or region, not of the slab. The cut job reads the blocks' records one block at a
 time, a few times over, and keeps a bounded sample of their costs
-(:mod:`trivsel.decimation.streamcut`). Only the step, quota and last jobs hold arrays over the
-whole grid (owners and flags per point, the tetrahedra, the regions' recorded costs), never a
-decimation of it.
+(:mod:`trivsel.decimation.streamcut`). The fit and pieces jobs hold one tile's surroundings at
+a time (the box its solve may reach, or the tile, widened by the longest tetrahedron), as a
+grid of their own. Only the step, quota and tiles jobs hold arrays over the whole grid (owners
+and flags per point, the tetrahedra, the regions' recorded costs), never a decimation of it;
+the last job holds a few numbers a tile, and the merged mesh when it writes one.
 """
 
 from __future__ import annotations
 
 import json
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import numpy as np
@@ -57,6 +65,8 @@ __all__ = ["plan_decimation", "make_config", "Stages", "run_job", "mesh_tets", "
 
 #: The stages themselves, from the method (through the registry, as every block stage reaches a method)
 B = get_method("decimate").block_stages()
+#: The folder of the mesh kept by tile after the last pass (``_tiles``)
+TILES = "tiles"
 #: Rows of a large mesh renumbered and written at a time (``_write_mesh``).
 MESH_CHUNK = 1 << 20
 INF = np.inf
@@ -82,8 +92,18 @@ REGION_BYTES_PER_TET = 450
 #: 57 (last job) above the interpreter's 55 MB (docs/notes), with room
 STEP_BYTES_PER_POINT = 40
 STEP_BYTES_PER_TET = 80
-FINISH_BYTES_PER_POINT = 100
 FINISH_BYTES_PER_TET = 100
+TILES_BYTES_PER_TET = 110
+#: Bytes per point of the box a ``fit`` or ``pieces`` job holds around a tile, and per tetrahedron
+#: of the mesh the stop allows a point (:func:`mesh_tets`): f4 in blocks of 32 with fitted values,
+#: about 110 and 410 (fit), 50 and 170 (pieces) a point above the interpreter at 5 % (129^3, 0.3
+#: tetrahedra a point) and 50 % (97^3, 2.9) (docs/notes), with room.  The longest extent of a
+#: tetrahedron taken for that box, in blocks (16-20 intervals measured in blocks of 32)
+FIT_BYTES_PER_POINT = 100
+FIT_BYTES_PER_TET = 150
+PIECE_BYTES_PER_POINT = 60
+PIECE_BYTES_PER_TET = 60
+TET_EXTENT_BLOCKS = 0.75
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
 #: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
@@ -190,9 +210,15 @@ class Stages:
 
     def job_kinds(self):
         """The kinds of job this run has (the rules of ``decimate.smk`` it runs): ``cut``,
-        ``rcosts`` and ``quota`` when it cuts recorded costs (:attr:`costed`), the others always."""
-        kinds = ["kernels", "costs", "mesh", "step", "apply", "finish"]
-        return kinds + (["cut", "rcosts", "quota"] if self.costed else [])
+        ``rcosts`` and ``quota`` when it cuts recorded costs (:attr:`costed`), ``fit`` with
+        fitted values, the others always."""
+        kinds = ["kernels", "costs", "mesh", "step", "apply", "tiles", "pieces", "finish"]
+        return kinds + (["fit"] if self.fit else []) + (["cut", "rcosts", "quota"] if self.costed else [])
+
+    @property
+    def fit(self):
+        """Whether the run fits the vertex values by least squares."""
+        return "fit" in (self.cfg.get("values") or ["data"])
 
     def budget(self):
         """The squared error the run may spend (:func:`trivsel.decimation.blocked.sse_budget`)."""
@@ -207,12 +233,12 @@ class Stages:
             return count_for_fraction(float(self.cfg["fraction"]), self.plan.n_points())
         return None
 
-    #: The job kinds with an item: a slab of blocks, a pass, or slab R of pass P's regions ("P_R")
-    ITEMS = ("costs", "mesh", "step", "quota", "rcosts", "apply")
+    #: The job kinds with an item: a slab of blocks or of tiles, a pass, or slab R of pass P's regions ("P_R")
+    ITEMS = ("costs", "mesh", "step", "quota", "rcosts", "apply", "fit", "pieces")
 
     def items(self, kind):
         """The names of the run's jobs of ``kind`` (one of ``ITEMS``), in order."""
-        if kind in ("costs", "mesh"):
+        if kind in ("costs", "mesh", "fit", "pieces"):
             return [str(s) for s in self.slabs]
         if kind in ("step", "quota"):
             return [str(p) for p in range(len(self.passes))]
@@ -616,77 +642,191 @@ def _region_apply(out, st, p, slab):
         _atomic_savez_each(folder / "out" / f"{slab}.npz", results(*_region_inputs(z), recorded))
 
 
+def _tiles(out, st):
+    """Merge the last pass and keep the mesh by tile (a block of the plan,
+    :func:`trivsel.decimation.blocked.mesh_tiles`), one file per x-slab of tiles: each tile's
+    tetrahedra (those whose lowest corner lies in it, in the order of the whole mesh's rows),
+    their rows, and the tetrahedron of each of its points (-1 for a vertex).  ``tiles/mesh.json``
+    holds the longest extent of a tetrahedron along an axis, which tells a later job how far
+    around its tile to read."""
+    T, owner, isv, _ = _state(out, st, len(st.passes))
+    plan = st.plan
+    owner[isv] = -1
+    del isv
+    m = int(np.count_nonzero(owner < 0))
+    ext = B.tet_extent(plan.shape, T)
+    tiles = enumerate(B.mesh_tiles(plan.shape, plan.cuts, T, owner))
+    per = plan.counts[1] * plan.counts[2]
+
+    def slab_of_tiles():  # one tile at a time, as they come
+        for _ in range(per):
+            t, (tets, rows, own) = next(tiles)
+            yield {f"tets_{t}": tets, f"rows_{t}": rows, f"owner_{t}": own}
+
+    for slab in st.slabs:
+        _atomic_savez_each(out / TILES / f"{slab}.npz", slab_of_tiles())
+    _atomic_write_text(out / TILES / "mesh.json",
+                       json.dumps({"extent": int(ext), "tetrahedra": int(len(T)), "vertices": m}))
+
+
+def _extent(out):
+    with open(out / TILES / "mesh.json") as fh:
+        return int(json.load(fh)["extent"])
+
+
+def _neighbourhood(out, plan, lo, hi):
+    """The mesh in the box ``lo`` to ``hi`` as a grid of its own
+    (:func:`trivsel.decimation.blocked.local_mesh`), read from the tiles that meet it, one at
+    a time: ``(tets, rows, ptet)``."""
+    ts = B.tiles_meeting(plan.cuts, lo, hi)
+    per = plan.counts[1] * plan.counts[2]
+    slabs = sorted({t // per for t in ts})
+    with _Members(*(out / TILES / f"{x}.npz" for x in slabs)) as z:
+        return B.local_mesh(plan.shape, lo, hi, ((z[f"tets_{t}"], z[f"rows_{t}"], z[f"owner_{t}"],
+                                                   *B.tile_box(plan.shape, plan.cuts, t)) for t in ts))
+
+
+def _box_ids(lo, hi, shape):
+    """The C-order indices, in a grid of ``shape``, of the points of the box ``lo`` to ``hi``."""
+    ax = [np.arange(int(a), int(b) + 1, dtype=np.int64) for a, b in zip(lo, hi)]
+    return ((ax[0][:, None, None] * shape[1] + ax[1][None, :, None]) * shape[2] + ax[2][None, None, :]).ravel()
+
+
+def _fit(out, st, slab):
+    """The least-squares values of the vertices of slab ``slab``'s tiles: each tile solved as
+    :func:`trivsel.decimation.blocked.tile_fit` solves it, from the mesh and the samples of the
+    box its solve may reach, widened by the longest tetrahedron (the same values, to the bit)."""
+    plan = st.plan
+    shape = np.asarray(plan.shape, np.int64)
+    ext = _extent(out)
+    vol = _open(st.cfg)
+
+    def fits():
+        for t, _, _ in st.blocks_of(slab):
+            rlo, rhi = B.fit_reach(plan.shape, plan.cuts, t)
+            lo, hi = np.maximum(rlo - ext, 0), np.minimum(rhi + ext, shape - 1)
+            tets, _, ptet = _neighbourhood(out, plan, lo, hi)
+            dims = tuple(int(d) for d in hi - lo + 1)
+            f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)
+            cuts = [np.asarray(c, np.int64) - o for c, o in zip(plan.cuts, lo)]
+            verts = np.flatnonzero(ptet == -1)
+            fitted = B.tile_fit(dims, cuts, tets, ptet, verts, f, tiles=[t])
+            own = B.tile_of(np.unravel_index(verts, dims), cuts) == t
+            yield {f"vertices_{t}": _box_ids(lo, hi, plan.shape)[verts[own]], f"fitted_{t}": fitted[own]}
+
+    _atomic_savez_each(out / "fit" / f"{slab}.npz", fits())
+
+
+def _vertex_values(out, plan, kind, lo, hi):
+    """The vertices (ascending) and their values that the ``kind`` jobs (``fit``: fitted;
+    ``pieces``: data) wrote for the tiles that meet the box ``lo`` to ``hi``."""
+    ts = B.tiles_meeting(plan.cuts, lo, hi)
+    per = plan.counts[1] * plan.counts[2]
+    name = "fitted" if kind == "fit" else "values"
+    folder = out / ("fit" if kind == "fit" else "sums")
+    with _Members(*(folder / f"{x}.npz" for x in sorted({t // per for t in ts}))) as z:
+        v = np.concatenate([z[f"vertices_{t}"] for t in ts])
+        x = np.concatenate([z[f"{name}_{t}"] for t in ts])
+    order = np.argsort(v, kind="stable")
+    return v[order], x[order]
+
+
+def _pieces(out, st, slab):
+    """Slab ``slab``'s tiles: each one's piece of the mesh (its tetrahedra, with the values and
+    fitted values of their corners), the errors at its points (as sums,
+    :class:`trivsel.norms.ErrorSums`), and its vertices with their values.  Each tile reads the
+    mesh and the samples of its box widened by the longest tetrahedron, which holds its
+    tetrahedra and the tetrahedron of each of its points."""
+    from ..norms import ErrorSums
+
+    plan = st.plan
+    shape = np.asarray(plan.shape, np.int64)
+    ext = _extent(out)
+    vol = _open(st.cfg)
+    fit = st.fit
+
+    def results(tiles):
+        for t, _, _ in st.blocks_of(slab):
+            blk = np.unravel_index(t, plan.counts)
+            tlo, thi = B.tile_box(plan.shape, plan.cuts, t)
+            lo, hi = np.maximum(tlo - ext, 0), np.minimum(thi + ext, shape - 1)
+            tets, _, ptet = _neighbourhood(out, plan, lo, hi)
+            dims = tuple(int(d) for d in hi - lo + 1)
+            ids = _box_ids(lo, hi, plan.shape)
+            f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)
+            pts = _box_ids(tlo - lo, thi - lo, dims)  # the tile's points in the box
+            verts, w, value = B.point_weights_of(dims, tets, ptet, pts, f)  # as the kernels interpolate
+            ijk = np.stack(np.unravel_index(ids[pts], plan.shape), axis=1)
+            inner = np.all((ijk > 0) & (ijk < shape - 1), axis=1)
+            del ijk
+            data = ErrorSums()
+            data.add(f[pts] - value, inner)
+            got = {f"data_{t}": data.to_array()}
+            fit_at = None
+            if fit:
+                fit_at = _vertex_values(out, plan, "fit", lo, hi)
+                at = np.searchsorted(fit_at[0], ids[verts])
+                sums = ErrorSums()
+                sums.add(f[pts] - np.einsum("ij,ij->i", w, fit_at[1][at]), inner)
+                got[f"fit_{t}"] = sums.to_array()
+            del verts, w, value
+            own = pts[ptet[pts] == -1]
+            got[f"vertices_{t}"], got[f"values_{t}"] = ids[own], f[own]
+            corners = tiles[f"tets_{t}"]
+            _write_mesh(out / "pieces" / f"{item_name(blk)}.vtu", vol, plan.shape, corners, (ids, f), fit_at)
+            yield got
+
+    with _Members(out / TILES / f"{slab}.npz") as tiles:
+        _atomic_savez_each(out / "sums" / f"{slab}.npz", results(tiles))
+
+
 def _finish(out, st):
-    """The merged mesh, its errors (and fitted values), one piece per block, the summary.  The
-    points' weights and residuals are computed in chunks, never for every point at once."""
-    from ..fitting import CHUNK
+    """The run's results: the errors (and those of the fitted values) summed over the tiles,
+    the pieces' ``mesh.pvtu``, the merged mesh (``mesh.vtu``: the tiles' tetrahedra in the
+    order of the whole mesh's rows, with the vertices' values that the tiles' jobs wrote) and
+    the summary.  Without the merged mesh it reads a few numbers a tile."""
     from ..io.pieces import write_pvtu
     from ..norms import ErrorSums
     from . import RESULTS, STAGED
 
-    T, owner, isv, _ = _state(out, st, len(st.passes))
     plan, cfg = st.plan, st.cfg
     N = plan.n_points()
-    owner[isv] = -1
-    del isv
-    vertices = np.flatnonzero(owner < 0)
-    vol = _open(cfg)
-    f = vol.read(tuple((0, n) for n in plan.shape)).reshape(-1)
-    hi = np.asarray(plan.shape) - 1
-
-    def chunks(values=None):  # the points in the fit's own chunks, so that its sums are those of one piece's fit
-        for s in range(0, N, CHUNK):
-            idx = np.arange(s, min(s + CHUNK, N), dtype=np.int64)
-            got = B.point_weights_of(plan.shape, T, owner, idx, values)  # with the interpolant of ``values``
-            ijk = np.stack(np.unravel_index(idx, plan.shape), axis=1)
-            yield idx, *got[:2], got[2] if values is not None else None, np.all((ijk > 0) & (ijk < hi), axis=1)
-
-    data_sums = ErrorSums()
-    for idx, _, _, value, inner in chunks(f):  # the data values' errors, as the kernels computed them
-        data_sums.add(f[idx] - value, inner)
+    fit = st.fit
+    data_sums, fit_sums = ErrorSums(), ErrorSums()
+    for slab in st.slabs:
+        with _Members(out / "sums" / f"{slab}.npz") as z:
+            for t, _, _ in st.blocks_of(slab):
+                data_sums.add_sums(z[f"data_{t}"])
+                if fit:
+                    fit_sums.add_sums(z[f"fit_{t}"])
     errors = data_sums.norms()
-    values = list(cfg.get("values") or ["data"])
-    # the fit tile by tile, each tile's solve bounded by the tile and its rings
-    fitted = B.tile_fit(plan.shape, plan.cuts, T, owner, vertices, f) if "fit" in values else None
-    fit = None
-    if fitted is not None:
-        fit_sums = ErrorSums()
-        at = np.full(N, -1, B.index_type(len(vertices)))  # a vertex's place in ``vertices``
-        at[vertices] = np.arange(len(vertices), dtype=at.dtype)
-        for idx, verts, w, _, inner in chunks():
-            fit_sums.add(f[idx] - np.einsum("ij,ij->i", w, fitted[at[verts]]), inner)
-        del at
-        fit = {"values": fitted, "errors": fit_sums.norms()}
+    with open(out / TILES / "mesh.json") as fh:
+        mesh = json.load(fh)
     staged = out / STAGED
-    # one piece per block: the tetrahedra whose lowest corner lies in it
-    piece_of = B.tile_of(np.unravel_index(T.min(axis=1), plan.shape), plan.cuts)
-    fit_at = None if fit is None else (vertices, fit["values"])
-    pieces = []
-    order = np.argsort(piece_of, kind="stable")
-    bounds = np.searchsorted(piece_of[order], np.arange(len(plan.blocks()) + 1))
-    with ThreadPoolExecutor(1) as pool:  # the merged mesh beside the pieces (VTK's writer releases the GIL)
-        merged = pool.submit(_write_mesh, staged / "mesh.vtu", vol, plan.shape, T, f, fit_at) \
-            if cfg.get("merged", True) else None
-        for b, blk in enumerate(plan.blocks()):
-            tets = T[order[bounds[b]:bounds[b + 1]]]
-            path = out / "pieces" / f"{item_name(blk)}.vtu"
-            _write_mesh(path, vol, plan.shape, tets, f, fit_at)
-            pieces.append(path)
-        write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
-        if merged is not None:
-            merged.result()
+    pieces = [out / "pieces" / f"{item_name(b)}.vtu" for b in plan.blocks()]
+    write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
+    if cfg.get("merged", True):
+        T = np.empty((mesh["tetrahedra"], 4), B.index_type(N))
+        for slab in st.slabs:  # each tile's tetrahedra back to their rows
+            with _Members(out / TILES / f"{slab}.npz") as z:
+                for t, _, _ in st.blocks_of(slab):
+                    T[z[f"rows_{t}"]] = z[f"tets_{t}"]
+        whole = tuple(np.asarray(plan.shape) - 1)
+        _write_mesh(staged / "mesh.vtu", _open(cfg), plan.shape, T, _vertex_values(out, plan, "pieces", (0,) * 3, whole),
+                    _vertex_values(out, plan, "fit", (0,) * 3, whole) if fit else None)
+        del T
     tau, _ = _tau(out)
     target = st.target()
-    m = len(vertices)
+    m = int(mesh["vertices"])
     why = B.stop_reason(m, target, cfg.get("tol_inf"), st.block, cfg.get("tol_rms"))
-    summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(len(T)),
+    summary = {"points": N, "vertices": m, "fraction": m / N, "tetrahedra": int(mesh["tetrahedra"]),
                "E_rms": errors["E_rms"], "E_inf": errors["E_inf"], "E_rms_interior": errors["E_rms_interior"],
                "E_inf_interior": errors["E_inf_interior"], "method": "decimate", "target": target,
                "tol_rms": cfg.get("tol_rms"), "tol_inf": cfg.get("tol_inf"), "stopped": why,
                "blocks": len(plan.blocks()), "cost_threshold": float(tau) if np.isfinite(tau) else None,
                "passes": len(st.passes)}
-    if fit is not None:
-        summary["fit"] = {k: float(v) for k, v in fit["errors"].items()}
+    if fit:
+        summary["fit"] = {k: float(v) for k, v in fit_sums.norms().items()}
     note = B.quality_note(N, target, st.block)
     if note:
         summary["notes"] = [note]
@@ -698,22 +838,20 @@ def _finish(out, st):
     return summary
 
 
-def _write_mesh(path, vol, shape, tets, f, fit_at, chunk=MESH_CHUNK):
+def _write_mesh(path, vol, shape, tets, value_at, fit_at, chunk=MESH_CHUNK):
     """Tetrahedra over global point indices as a .vtu: their vertices sorted by the input's
-    point id, with ``value``, ``fitted_value`` (``fit_at``: the vertices and their fitted
-    values) and ``original_index``.  The cells are renumbered and written ``chunk`` rows at a
-    time (:func:`trivsel.io.pieces.write_piece_in_chunks`): a large mesh (the merged one)
-    takes a flag and an index a grid point beside its points, never a copy of its cells."""
+    point id, with ``value`` and ``fitted_value`` (``value_at``, ``fit_at``: point indices,
+    ascending, and the values there; every corner among them) and ``original_index``.  The
+    cells are renumbered and written ``chunk`` rows at a time
+    (:func:`trivsel.io.pieces.write_piece_in_chunks`): a large mesh (the merged one) takes its
+    vertices and an index a vertex beside its cells, never a copy of its cells or an array
+    over the grid."""
     from ..io.pieces import write_piece_in_chunks
 
     if len(tets) <= chunk:
         ids, corners = np.unique(tets, return_inverse=True)
     else:
-        seen = np.zeros(int(np.prod(shape)), bool)
-        for s in range(0, len(tets), chunk):
-            seen[tets[s:s + chunk]] = True
-        ids = np.flatnonzero(seen)
-        del seen
+        ids = np.unique(np.concatenate([np.unique(tets[s:s + chunk]) for s in range(0, len(tets), chunk)]))
     ijk = np.stack(np.unravel_index(ids, shape), axis=1)
     file_ids = vol.file_ids(ijk)
     order = np.argsort(file_ids, kind="stable")
@@ -722,16 +860,17 @@ def _write_mesh(path, vol, shape, tets, f, fit_at, chunk=MESH_CHUNK):
     if len(tets) <= chunk:
         cells = lambda: [rank[corners.reshape(tets.shape)]]  # noqa: E731
     else:
-        at = np.empty(int(np.prod(shape)), rank.dtype)  # a grid point's place among the vertices
-        at[ids] = rank
-        del rank
-        cells = lambda: (at[tets[s:s + chunk]] for s in range(0, len(tets), chunk))  # noqa: E731
+        cells = lambda: (rank[np.searchsorted(ids, tets[s:s + chunk])] for s in range(0, len(tets), chunk))  # noqa: E731
     ids, file_ids = ids[order], file_ids[order]
     points = vol.coordinates(ijk[order])
     del ijk, order
-    arrays = None if fit_at is None else {"fitted_value": fit_at[1][np.searchsorted(fit_at[0], ids)]}
+
+    def at(pairs):
+        return pairs[1][np.searchsorted(pairs[0], ids)]
+
+    arrays = None if fit_at is None else {"fitted_value": at(fit_at)}
     Path(path).parent.mkdir(parents=True, exist_ok=True)
-    write_piece_in_chunks(path, points, cells, len(tets), f[ids], file_ids, overwrite=True, arrays=arrays)
+    write_piece_in_chunks(path, points, cells, len(tets), at(value_at), file_ids, overwrite=True, arrays=arrays)
 
 
 def mesh_tets(cfg, plan):
@@ -775,9 +914,20 @@ def job_resources(cfg, plan, kind):
     elif kind == "step":
         mem = JOB_BASE_BYTES + STEP_BYTES_PER_POINT * N + STEP_BYTES_PER_TET * mesh_tets(cfg, plan)
         secs = 60 + 2e-6 * N
-    elif kind == "finish":
-        mem = JOB_BASE_BYTES + FINISH_BYTES_PER_POINT * N + FINISH_BYTES_PER_TET * mesh_tets(cfg, plan)
-        secs = 60 + 1e-5 * N
+    elif kind == "tiles":
+        mem = JOB_BASE_BYTES + STEP_BYTES_PER_POINT * N + TILES_BYTES_PER_TET * mesh_tets(cfg, plan)
+        secs = 60 + 2e-6 * N
+    elif kind in ("fit", "pieces"):  # a slab's tiles one at a time, each with the box around it
+        width = np.array([max(np.diff(c)) for c in plan.cuts])
+        reach = 2 * int(TET_EXTENT_BLOCKS * block) + (2 * np.maximum(width // 2, B.FIT_MARGIN) if kind == "fit" else 0)
+        box = float(np.prod(np.minimum(width + reach + 1, plan.shape)))
+        dense = mesh_tets(cfg, plan) / N
+        mem = JOB_BASE_BYTES + box * (FIT_BYTES_PER_POINT + FIT_BYTES_PER_TET * dense if kind == "fit"
+                                      else PIECE_BYTES_PER_POINT + PIECE_BYTES_PER_TET * dense)
+        secs = 60 + 5e-6 * box * plan.counts[1] * plan.counts[2]
+    elif kind == "finish":  # the merged mesh's cells and vertices; the errors' sums alone without it
+        mem = JOB_BASE_BYTES + (FINISH_BYTES_PER_TET * mesh_tets(cfg, plan) if cfg.get("merged", True) else 0)
+        secs = 60 + 1e-6 * N
     elif kind == "kernels":
         mem, secs = 2 * JOB_BASE_BYTES, 600
     elif kind == "cut":  # a sample of the blocks' costs, a few numbers a block, and a block recorded again
@@ -812,6 +962,12 @@ def run_job(out, kind, item=""):
         (_region_costs if kind == "rcosts" else _region_apply)(out, st, p, slab)
     elif kind == "quota":
         _quota(out, st, int(item))
+    elif kind == "tiles":
+        _tiles(out, st)
+    elif kind == "fit":
+        _fit(out, st, int(item))
+    elif kind == "pieces":
+        _pieces(out, st, int(item))
     elif kind == "finish":
         _finish(out, st)
     else:
@@ -824,7 +980,7 @@ def main(argv=None):
     """``python -m trivsel.blocks.decimate KIND OUT [ITEM]``: one job of the workflow."""
     from . import main as blocks_main
 
-    return blocks_main(argv, job=run_job, prog="trivsel.blocks.decimate", usage="{kernels,costs,cut,mesh,step,rcosts,quota,apply,finish} OUT [ITEM]",
+    return blocks_main(argv, job=run_job, prog="trivsel.blocks.decimate", usage="{kernels,costs,cut,mesh,step,rcosts,quota,apply,tiles,fit,pieces,finish} OUT [ITEM]",
                        batches=())
 
 

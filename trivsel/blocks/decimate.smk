@@ -2,18 +2,20 @@
 #
 #   kernels -> costs (x-slabs of blocks) -> cut -> mesh (x-slabs of blocks) ->
 #   per pass P: step_P (merge the pass before, plan this one) -> [rcosts (x-slabs of regions)
-#   -> quota (and the regions recorded again)] -> apply (x-slabs of regions) -> finish
+#   -> quota (and the regions recorded again)] -> apply (x-slabs of regions) ->
+#   tiles (the last pass merged, the mesh kept by tile) -> [fit (x-slabs of tiles)] ->
+#   pieces (x-slabs of tiles) -> finish
 #
-# The bracketed stages run with a count or tol_rms (ST.costed): their cut spends the count and
-# the squared-error budget that tau.json and each quota.npz carry on.
+# The first bracketed stages run with a count or tol_rms (ST.costed): their cut spends the count
+# and the squared-error budget that tau.json and each quota.npz carry on; fit runs with fitted values.
 #
 # The stages are those of `trivsel reduce --block B` (trivsel.decimation.blocked), so both give the
 # same mesh.  Written and run by `trivsel blocks` in the run's folder, which holds blocks.json.
 # What one stage hands the next is temporary: Snakemake removes a file once every job that
 # reads it has run (a killed run keeps what its unfinished jobs still need).
 # Block and region jobs read only their blocks' or regions' samples, the cut job a sample of the
-# blocks' costs; step, quota and finish hold arrays over the whole grid (a few bytes a point),
-# never a decimation of it.  The rules run
+# blocks' costs, fit and pieces jobs each tile's surroundings; step, quota and tiles hold arrays
+# over the whole grid (a few bytes a point), never a decimation of it.  The rules run
 # in the Python environment that runs Snakemake.
 # Each command execs the job's Python in place of the shell, so the job's process is Snakemake's
 # child: a cluster that finds a job's processes by their parents (SLURM's proctrack/linuxproc)
@@ -35,6 +37,8 @@ CFG, PLAN = read_config(".")
 ST = Stages(CFG, PLAN)
 PY = sys.executable
 PASSES = range(len(ST.passes))
+TILE_FILES = [f"tiles/{s}.npz" for s in ST.slabs]
+FIT_FILES = [f"fit/{s}.npz" for s in ST.slabs] if ST.fit else []
 RESULTS = [f"merged/{name}" for name in ["summary.json", "mesh.pvtu"] + (["mesh.vtu"] if CFG["merged"] else [])]
 
 
@@ -218,12 +222,78 @@ rule apply:
         "exec '{params.py}' -m trivsel.blocks.decimate apply . {wildcards.p}_{wildcards.slab} > {log} 2>&1"
 
 
-rule finish:
+# the last pass merged and the mesh kept by tile (a block of the plan), one file per x-slab of tiles
+rule tiles:
     input:
         step_inputs(len(ST.passes)),
     output:
-        RESULTS,
+        temp(TILE_FILES),
+        temp("tiles/mesh.json"),
+    log:
+        "logs/tiles.log",
+    benchmark:
+        "benchmarks/tiles.tsv"
+    resources:
+        **res("tiles"),
+    params:
+        py=PY,
+    shell:
+        "exec '{params.py}' -m trivsel.blocks.decimate tiles . > {log} 2>&1"
+
+
+# the fitted values of a slab's tiles: each from the tiles around it
+rule fit:
+    input:
+        TILE_FILES,
+        "tiles/mesh.json",
+    output:
+        temp("fit/{slab}.npz"),
+    log:
+        "logs/fit/{slab}.log",
+    benchmark:
+        "benchmarks/fit/{slab}.tsv"
+    resources:
+        **res("fit"),
+    params:
+        py=PY,
+    shell:
+        "exec '{params.py}' -m trivsel.blocks.decimate fit . {wildcards.slab} > {log} 2>&1"
+
+
+# a slab's pieces, and the errors at its tiles' points
+for _s in ST.slabs:
+
+    rule:
+        name:
+            f"pieces_{_s}"
+        input:
+            TILE_FILES,
+            "tiles/mesh.json",
+            FIT_FILES,
+        output:
+            temp(f"sums/{_s}.npz"),
+            [f"pieces/{item_name(b)}.vtu" for b in PLAN.blocks() if b[0] == _s],
+        log:
+            f"logs/pieces/{_s}.log",
+        benchmark:
+            f"benchmarks/pieces/{_s}.tsv"
+        resources:
+            **res("pieces"),
+        params:
+            py=PY,
+            slab=_s,
+        shell:
+            "exec '{params.py}' -m trivsel.blocks.decimate pieces . {params.slab} > {log} 2>&1"
+
+
+rule finish:
+    input:
+        [f"sums/{s}.npz" for s in ST.slabs],
+        "tiles/mesh.json",
         [f"pieces/{item_name(b)}.vtu" for b in PLAN.blocks()],
+        (TILE_FILES + FIT_FILES) if CFG["merged"] else [],
+    output:
+        RESULTS,
     log:
         "logs/finish.log",
     benchmark:

@@ -1002,7 +1002,110 @@ def tile_of(ijk, cuts):
     return t
 
 
-def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS):
+def tile_box(shape, cuts, t):
+    """The grid points of tile ``t`` (:func:`tile_of`) as the box ``lo`` to ``hi`` (both
+    included, int64 arrays): along each axis from its lower cut to the point before its upper
+    cut, the last tile to the last cut."""
+    at = np.unravel_index(int(t), [len(c) - 1 for c in cuts])
+    lo = np.array([int(cuts[a][i]) for a, i in enumerate(at)], np.int64)
+    hi = np.array([int(cuts[a][i + 1]) - (i + 2 < len(cuts[a])) for a, i in enumerate(at)], np.int64)
+    return lo, np.minimum(hi, np.asarray(shape, np.int64) - 1)
+
+
+def fit_reach(shape, cuts, t):
+    """The box (``lo``, ``hi``, both included) that bounds tile ``t``'s least-squares solve
+    (:func:`tile_fit`): the block widened by half its size on each side, at least
+    :data:`FIT_MARGIN` intervals, within the grid."""
+    at = np.unravel_index(int(t), [len(c) - 1 for c in cuts])
+    half = np.array([max((int(cuts[a][i + 1]) - int(cuts[a][i])) // 2, FIT_MARGIN) for a, i in enumerate(at)])
+    lo = np.maximum(np.array([int(cuts[a][i]) for a, i in enumerate(at)]) - half, 0)
+    hi = np.minimum(np.array([int(cuts[a][i + 1]) for a, i in enumerate(at)]) + half, np.asarray(shape) - 1)
+    return lo.astype(np.int64), hi.astype(np.int64)
+
+
+def tet_extent(shape, tets, chunk=1 << 20):
+    """The longest extent of a tetrahedron of ``tets`` (global point indices) along a grid
+    axis, in intervals: a tetrahedron with a corner in a box has its lowest corner in the box
+    widened by this much below, and all its corners in the box widened by this much."""
+    ext = 0
+    for s in range(0, len(tets), chunk):
+        ijk = _grid_coordinates(np.asarray(tets[s:s + chunk]).astype(np.int64).ravel(), shape)
+        ext = max([ext] + [int(np.ptp(x.reshape(-1, 4), axis=1).max()) for x in ijk])
+    return ext
+
+
+def mesh_tiles(shape, cuts, tets, ptet):
+    """A mesh kept by tile, each tile in turn (a generator, in tile order):
+    ``(tets, rows, owner)``, its tetrahedra (those whose lowest corner lies in it, in the
+    order of ``tets``), their rows in ``tets``, and ``ptet`` over its box (:func:`tile_box`,
+    C order).  Every tetrahedron and every point is in exactly one tile."""
+    tile = tile_of(_grid_coordinates(tets.min(axis=1).astype(np.int64), shape), cuts)
+    order = np.argsort(tile, kind="stable").astype(index_type(len(tets)))
+    n = int(np.prod([len(c) - 1 for c in cuts]))
+    bounds = np.searchsorted(tile[order], np.arange(n + 1))
+    del tile
+    grid = np.asarray(ptet).reshape(tuple(shape))
+    for t in range(n):
+        lo, hi = tile_box(shape, cuts, t)
+        rows = order[bounds[t]:bounds[t + 1]]
+        yield tets[rows], rows, grid[tuple(slice(int(a), int(b) + 1) for a, b in zip(lo, hi))].ravel()
+
+
+def tiles_meeting(cuts, lo, hi):
+    """The tiles whose boxes (:func:`tile_box`) meet the box ``lo`` to ``hi`` (both
+    included), in tile order."""
+    along = []
+    for a, c in enumerate(cuts):
+        c = np.asarray(c, np.int64)
+        tlo, thi = c[:-1], np.append(c[1:-1] - 1, c[-1])
+        along.append(np.flatnonzero((tlo <= hi[a]) & (thi >= lo[a])))
+    n = [len(c) - 1 for c in cuts]
+    return [int((i * n[1] + j) * n[2] + k) for i in along[0] for j in along[1] for k in along[2]]
+
+
+def local_mesh(shape, lo, hi, tiles):
+    """The part of a mesh kept by tiles that lies in the box ``lo`` to ``hi`` (both included),
+    as a mesh of that box's own grid, for a job that holds one tile's surroundings and not the
+    whole grid.
+
+    ``tiles`` are the tiles whose boxes meet it (:func:`tiles_meeting`), in tile order, each
+    ``(tets, rows, owner, tlo, thi)``: what :func:`mesh_tiles` gives for it (its tetrahedra,
+    over global point indices, their rows in the whole mesh, and the whole mesh's ``ptet`` over
+    its box; a row, -1 for a vertex) and its box (:func:`tile_box`).  Returns ``(tets, rows, ptet)``: the
+    tetrahedra with every corner in the box (over the box's point indices, in the order
+    given), their rows in the whole mesh, and each of the box's points' local row (-1 for a
+    vertex, -2 where its tetrahedron has a corner outside the box)."""
+    lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
+    dims = hi - lo + 1
+    ptet = np.full(int(np.prod(dims)), -2, np.int64)
+    keep_t, keep_r = [], []
+    for tets, rows, owner, tlo, thi in tiles:
+        ijk = _grid_coordinates(np.asarray(tets, np.int64).ravel(), shape)
+        inside = np.ones(len(tets) * 4, bool)
+        for a in range(3):
+            inside &= (ijk[a] >= lo[a]) & (ijk[a] <= hi[a])
+        inside = inside.reshape(-1, 4).all(axis=1)
+        local = ((ijk[0] - lo[0]) * dims[1] + ijk[1] - lo[1]) * dims[2] + ijk[2] - lo[2]
+        keep_t.append(local.reshape(-1, 4)[inside])
+        keep_r.append(np.asarray(rows, np.int64)[inside])
+        a0, a1 = np.maximum(tlo, lo), np.minimum(thi, hi)  # the tile's points in the box
+        if np.any(a0 > a1):
+            continue
+        src = np.asarray(owner).reshape(tuple(np.asarray(thi) - tlo + 1))
+        sub = src[tuple(slice(int(x - t), int(y - t) + 1) for x, y, t in zip(a0, a1, tlo))]
+        ptet.reshape(tuple(dims))[tuple(slice(int(x - o), int(y - o) + 1) for x, y, o in zip(a0, a1, lo))] = sub
+    tets = np.concatenate(keep_t) if keep_t else np.zeros((0, 4), np.int64)
+    rows = np.concatenate(keep_r) if keep_r else np.zeros(0, np.int64)
+    by_row = np.argsort(rows, kind="stable")
+    inside = ptet >= 0  # a row of the whole mesh, to its place among the tetrahedra kept
+    at = np.minimum(np.searchsorted(rows[by_row], ptet[inside]), max(len(rows) - 1, 0))
+    found = rows[by_row][at] == ptet[inside] if len(rows) else np.zeros(int(inside.sum()), bool)
+    ptet[inside] = np.where(found, by_row[at], -2)
+    t = index_type(max(int(np.prod(dims)), len(tets)))
+    return tets.astype(t), rows, ptet.astype(np.int64)
+
+
+def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS, tiles=None):
     """Least-squares vertex values (section 5's eq. 19 minimised over the vertex values, as
     :func:`trivsel.fitting.fit_vertex_values` does over the whole mesh), solved tile by tile
     so that no solve holds more than a tile and its surroundings.
@@ -1034,11 +1137,17 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS):
         The grid's values, flat.
     rings : int
         Rings of tetrahedra around a tile whose vertices are solved for with it.
+    tiles : iterable of int, optional
+        The tiles to solve (all by default).  A tile's solve reads only the tetrahedra with
+        their lowest corner in its box widened as above and by the longest extent of a
+        tetrahedron, and ``ptet`` and ``values`` in that box widened again by the extent, so a
+        caller may pass that neighbourhood alone, as a grid of its own (the last jobs of
+        ``trivsel blocks`` do): the values are the same, to the bit.
 
     Returns
     -------
     (m,) float
-        The fitted values at ``vertices``.
+        The fitted values at ``vertices`` (NaN at those of the tiles not solved).
     """
     import scipy.sparse as sp
 
@@ -1061,10 +1170,7 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS):
     lowest = tets.min(axis=1)
     by_lowest = np.argsort(lowest, kind="stable").astype(index_type(len(tets)))
     lowest = lowest[by_lowest]
-    ext = 0
-    for s in range(0, len(tets), 1 << 20):
-        ijk = _grid_coordinates(tets[s:s + (1 << 20)].astype(np.int64).ravel(), shape)
-        ext = max([ext] + [int(np.ptp(x.reshape(-1, 4), axis=1).max()) for x in ijk])
+    ext = tet_extent(shape, tets)
     yz = int(shape[1]) * int(shape[2])
 
     def around(lo, hi):  # the tetrahedra with a corner in the box [lo, hi], and maybe some more
@@ -1076,18 +1182,14 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS):
     touched = np.zeros(len(tets), bool)  # both reset after each tile
     unknown = np.zeros(m, bool)
     loc = np.full(m, -1, np.int64)
-    fitted = np.empty(m)
-    for b in range(int(np.prod(counts))):
+    fitted = np.full(m, np.nan)
+    for b in (range(int(np.prod(counts))) if tiles is None else tiles):
         own = vorder[vbounds[b]:vbounds[b + 1]]
         if len(own) == 0:
             continue
         unknown[own] = True
         u = own
-        at = np.unravel_index(b, counts)  # the tile widened by half its size on each side bounds the solve
-        half = np.array([max((int(cuts[a][i + 1]) - int(cuts[a][i])) // 2, FIT_MARGIN) for a, i in enumerate(at)])
-        cap_lo = np.maximum(np.array([int(cuts[a][i]) for a, i in enumerate(at)]) - half, 0)
-        cap_hi = np.minimum(np.array([int(cuts[a][i + 1]) for a, i in enumerate(at)]) + half,
-                            np.asarray(shape) - 1)
+        cap_lo, cap_hi = fit_reach(shape, cuts, b)
         rows = np.zeros(0, np.int64)  # the tetrahedra looked at so far, their corners' columns
         ct = np.zeros((0, 4), col.dtype)
         for ring in range(rings + 1):
