@@ -705,44 +705,42 @@ def test_a_tile_fit_of_one_tile_is_the_whole_mesh_fit(ridge_in_blocks):
     assert np.allclose(one, whole, rtol=0, atol=1e-8 * np.abs(whole).max())
 
 
-def test_a_tile_solved_from_its_neighbourhood_alone_is_the_whole_tile_fit(ridge_in_blocks):
-    """The mesh kept by tile (``mesh_tiles``): each tetrahedron and point in one tile.  Around
-    each tile, the box its solve may reach widened by the longest tetrahedron, read from the
-    tiles that meet it alone (``local_mesh``), holds exactly the whole mesh's tetrahedra in the
-    box and each point's tetrahedron where that lies in it; the tile's fit from that box alone,
-    as a grid of its own, is ``tile_fit``'s over the whole mesh, to the bit."""
-    from trivsel.decimation.blocked import fit_reach, local_mesh, mesh_tiles, tet_extent, tile_box, tiles_meeting
+def test_a_tile_solved_from_its_surroundings_alone_is_the_whole_tile_fit(ridge_in_blocks):
+    """The mesh kept by tile (``mesh_tiles``): each point in one tile, each tetrahedron in every
+    tile its corners' box meets.  Read from the tiles that meet the box a tile's solve may
+    reach (``mesh_meeting``), the tetrahedra are exactly those that meet the box, with each
+    point's tetrahedron; the tile's fit from them alone (``fit_tile``) is ``tile_fit``'s over
+    the whole mesh, to the bit."""
+    from trivsel.decimation.blocked import fit_reach, fit_tile, mesh_meeting, mesh_tiles, tile_box, tiles_meeting
 
     vol, out, _ = ridge_in_blocks
     shape, T, ptet, f = vol.shape, out["tets"], out["ptet"], vol.reshape(-1)
     cuts = [block_cuts(n, 8) for n in shape]
     whole = tile_fit(shape, cuts, T, ptet, out["vertices"], f)
-    tiles = list(mesh_tiles(shape, cuts, T, ptet))
-    assert np.array_equal(np.sort(np.concatenate([r for _, r, _ in tiles])), np.arange(len(T)))
+    tiles = list(mesh_tiles(shape, cuts, T, ptet, chunk=1000))
+    corners = np.stack(np.unravel_index(T, shape), axis=-1)
+    tmin, tmax = corners.min(axis=1), corners.max(axis=1)
+
+    def meeting(lo, hi):
+        return np.flatnonzero(np.all((tmin <= hi) & (tmax >= lo), axis=1))
+
     assert sum(len(o) for _, _, o in tiles) == vol.size and len(tiles) == np.prod([len(c) - 1 for c in cuts])
+    for t, (tets, rows, _) in enumerate(tiles):
+        assert np.array_equal(rows, meeting(*tile_box(shape, cuts, t))) and np.array_equal(tets, T[rows])
+    assert sum(len(r) for _, r, _ in tiles) > len(T)  # tetrahedra across the seams are kept twice or more
     col = np.full(vol.size, -1)
     col[out["vertices"]] = np.arange(len(out["vertices"]))
     vtile = tile_of(np.unravel_index(out["vertices"], shape), cuts)
-    corners = np.stack(np.unravel_index(T, shape), axis=-1)
-    ext = tet_extent(shape, T)
-    assert ext == int(np.ptp(corners, axis=1).max())
     for t in range(len(tiles)):
-        rlo, rhi = fit_reach(shape, cuts, t)
-        lo, hi = np.maximum(rlo - ext, 0), np.minimum(rhi + ext, np.array(shape) - 1)
-        tets, rows, lptet = local_mesh(shape, lo, hi, [(*tiles[u], *tile_box(shape, cuts, u))
-                                                       for u in tiles_meeting(cuts, lo, hi)])
-        dims = tuple(int(d) for d in hi - lo + 1)
-        ax = [np.arange(a, b + 1) for a, b in zip(lo, hi)]
-        ids = np.ravel_multi_index(np.meshgrid(*ax, indexing="ij"), shape).ravel()
-        inbox = np.all((corners >= lo) & (corners <= hi), axis=(1, 2))
-        assert np.array_equal(np.sort(rows), np.flatnonzero(inbox)) and np.array_equal(ids[tets], T[rows])
+        lo, hi = fit_reach(shape, cuts, t)
+        tets, rows, lptet = mesh_meeting(shape, lo, hi, [(*tiles[u], *tile_box(shape, cuts, u))
+                                                         for u in tiles_meeting(cuts, lo, hi)])
+        assert np.array_equal(rows, meeting(lo, hi)) and np.array_equal(tets, T[rows])
+        ids = np.ravel_multi_index(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"),
+                                   shape).ravel()
         g = ptet[ids]
-        assert np.array_equal(lptet == -1, g < 0)
-        kept = lptet >= 0
-        assert np.array_equal(rows[lptet[kept]], g[kept]) and not np.isin(g[lptet == -2], rows).any()
-        cl = [np.asarray(c) - o for c, o in zip(cuts, lo)]
-        verts = np.flatnonzero(lptet == -1)
-        got = tile_fit(dims, cl, tets, lptet, verts, f[ids], tiles=[t])
-        own = tile_of(np.unravel_index(verts, dims), cl) == t
-        assert own.sum() == np.count_nonzero(vtile == t) and np.isnan(got[~own]).all()
-        assert np.array_equal(got[own], whole[col[ids[verts[own]]]])
+        assert np.array_equal(lptet == -1, g < 0) and np.array_equal(rows[lptet[g >= 0]], g[g >= 0])
+        verts = np.unique(tets)
+        own, got = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts])
+        assert np.array_equal(own, out["vertices"][vtile == t]) and len(own)
+        assert np.array_equal(got, whole[col[own]])

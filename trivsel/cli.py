@@ -351,7 +351,7 @@ def _blocks_hint(a, chosen, available):
         stop += ["--tol-rms", f"{float(a.tol_rms):g}"] if a.tol_rms is not None else []
         stop += ["--tol-inf", f"{float(a.tol_inf):g}"] if a.tol_inf is not None else []
         # the largest block whose region jobs fit a core's share, and every other job here too
-        # (the step and last jobs hold arrays over the whole grid)
+        # (the step and tiles jobs hold arrays over the whole grid)
         sizes = [b for b in SUGGESTED_BLOCKS if b <= jobs_block(available)]
         needs = [_decimate_jobs_memory(a, shape, b) for b in sizes]
         fit = [b for b, need in zip(sizes, needs) if max(need.values()) <= available]

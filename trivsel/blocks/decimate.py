@@ -26,12 +26,12 @@ one stage hands the next is a file in the run's folder::
                        quota, replayed): the points it removed, its new tetrahedra, the
                        points inside them
     tiles/X.npz        after the last pass, the mesh kept by tile (a block of the plan) for
-                       x-slab X of tiles: each tile's tetrahedra (those whose lowest corner
-                       lies in it), their rows, and each of its points' tetrahedron;
-                       tiles/mesh.json the longest extent of a tetrahedron, the counts
+                       x-slab X of tiles: each tile's tetrahedra (every one that meets it),
+                       their rows, and each of its points' tetrahedron,
+                       and its vertices with their values; tiles/mesh.json the counts
     fit/X.npz          the fitted values of the vertices of slab X's tiles (with ``fit``)
-    sums/X.npz         the errors at the points of slab X's tiles, as sums, and the tiles'
-                       vertices and values; beside it each tile's piece (pieces/)
+    sums/X.npz         the errors at the points of slab X's tiles, as sums; beside it each
+                       tile's piece (pieces/)
     merged/            the last step: mesh.vtu (vertices sorted by the input's point id),
                        mesh.pvtu over the pieces, summary.json
 
@@ -43,10 +43,11 @@ its file one block or region at a time (``_atomic_savez_each``), so that its mem
 one block or region, not of the slab. The cut job reads the blocks' records one block at a
 time, a few times over, and keeps a bounded sample of their costs
 (:mod:`trivsel.decimation.streamcut`). The fit and pieces jobs hold one tile's surroundings at
-a time (the box its solve may reach, or the tile, widened by the longest tetrahedron), as a
-grid of their own. Only the step, quota and tiles jobs hold arrays over the whole grid (owners
-and flags per point, the tetrahedra, the regions' recorded costs), never a decimation of it;
-the last job holds a few numbers a tile, and the merged mesh when it writes one.
+a time: the samples of the box its solve may reach (fit) or of the tile (pieces), the
+tetrahedra that meet that box and their corners' values. Only the step, quota and tiles jobs
+hold arrays over the whole grid (owners and flags per point, the tetrahedra, the regions'
+recorded costs), never a decimation of it; the last job holds a few numbers a tile, and the
+merged mesh when it writes one.
 """
 
 from __future__ import annotations
@@ -86,24 +87,24 @@ DECIMATION_BYTES_PER_POINT = 1000
 REGION_BYTES_PER_POINT = 500
 REGION_BYTES_PER_TET = 450
 #: Bytes per grid point and per tetrahedron of the whole mesh, of a step job (owners and flags per point;
-#: the tetrahedra, their regions and the pass plan's temporaries) and of the last job (the points' weights and
-#: residuals in chunks, with fitted values their normal equations, the meshes written a chunk at a time):
-#: measured on f4 at 129^3 in blocks of 32 to 5 % and 50 % with fitted values, about 11 and 60 (step), 71 and
-#: 57 (last job) above the interpreter's 55 MB (docs/notes), with room
+#: the tetrahedra, their regions and the pass plan's temporaries): measured on f4 at 129^3 in blocks of 32
+#: to 5 % and 50 % with fitted values, about 11 and 60 above the interpreter's 55 MB (docs/notes), with room
 STEP_BYTES_PER_POINT = 40
 STEP_BYTES_PER_TET = 80
+#: The tiles job holds a step job's arrays, and each tetrahedron once for every tile it meets; the
+#: last job, with the merged mesh, its tetrahedra and vertices.  Measured alone (``/usr/bin/time``) on
+#: f4 in blocks of 32 with fitted values: 212 and 191 MB (tiles, finish) at 129^3 to 5 %, 503 and 284 MB
+#: at 97^3 to 50 %; the whole T1 in blocks of 48 to 5 %, 579 and 303 MB (docs/notes)
 FINISH_BYTES_PER_TET = 100
 TILES_BYTES_PER_TET = 110
-#: Bytes per point of the box a ``fit`` or ``pieces`` job holds around a tile, and per tetrahedron
-#: of the mesh the stop allows a point (:func:`mesh_tets`): f4 in blocks of 32 with fitted values,
-#: about 110 and 410 (fit), 50 and 170 (pieces) a point above the interpreter at 5 % (129^3, 0.3
-#: tetrahedra a point) and 50 % (97^3, 2.9) (docs/notes), with room.  The longest extent of a
-#: tetrahedron taken for that box, in blocks (16-20 intervals measured in blocks of 32)
+#: Bytes per point of the box a ``fit`` or ``pieces`` job holds around a tile (the box its solve
+#: may reach, or the tile), and per tetrahedron of the mesh the stop allows a point (:func:`mesh_tets`).
+#: Measured as above: 126 and 60 MB (fit, pieces) at 129^3 to 5 %, 339 and 99 MB at 97^3 to 50 %, 367
+#: and 113 MB on the whole T1
 FIT_BYTES_PER_POINT = 100
 FIT_BYTES_PER_TET = 150
 PIECE_BYTES_PER_POINT = 60
 PIECE_BYTES_PER_TET = 60
-TET_EXTENT_BLOCKS = 0.75
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
 #: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
@@ -645,45 +646,41 @@ def _region_apply(out, st, p, slab):
 def _tiles(out, st):
     """Merge the last pass and keep the mesh by tile (a block of the plan,
     :func:`trivsel.decimation.blocked.mesh_tiles`), one file per x-slab of tiles: each tile's
-    tetrahedra (those whose lowest corner lies in it, in the order of the whole mesh's rows),
-    their rows, and the tetrahedron of each of its points (-1 for a vertex).  ``tiles/mesh.json``
-    holds the longest extent of a tetrahedron along an axis, which tells a later job how far
-    around its tile to read."""
+    tetrahedra (every one whose corners' box meets the tile), their rows, the tetrahedron of
+    each of its points (-1 for a vertex), and its vertices with their values (read tile by
+    tile).  ``tiles/mesh.json`` holds the counts."""
     T, owner, isv, _ = _state(out, st, len(st.passes))
     plan = st.plan
     owner[isv] = -1
     del isv
     m = int(np.count_nonzero(owner < 0))
-    ext = B.tet_extent(plan.shape, T)
+    vol = _open(st.cfg)
     tiles = enumerate(B.mesh_tiles(plan.shape, plan.cuts, T, owner))
     per = plan.counts[1] * plan.counts[2]
 
     def slab_of_tiles():  # one tile at a time, as they come
         for _ in range(per):
             t, (tets, rows, own) = next(tiles)
-            yield {f"tets_{t}": tets, f"rows_{t}": rows, f"owner_{t}": own}
+            lo, hi = B.tile_box(plan.shape, plan.cuts, t)
+            at = np.flatnonzero(own < 0)
+            yield {f"tets_{t}": tets, f"rows_{t}": rows, f"owner_{t}": own,
+                   f"vertices_{t}": _box_ids(lo, hi, plan.shape)[at],
+                   f"values_{t}": np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)[at]}
 
     for slab in st.slabs:
         _atomic_savez_each(out / TILES / f"{slab}.npz", slab_of_tiles())
-    _atomic_write_text(out / TILES / "mesh.json",
-                       json.dumps({"extent": int(ext), "tetrahedra": int(len(T)), "vertices": m}))
-
-
-def _extent(out):
-    with open(out / TILES / "mesh.json") as fh:
-        return int(json.load(fh)["extent"])
+    _atomic_write_text(out / TILES / "mesh.json", json.dumps({"tetrahedra": int(len(T)), "vertices": m}))
 
 
 def _neighbourhood(out, plan, lo, hi):
-    """The mesh in the box ``lo`` to ``hi`` as a grid of its own
-    (:func:`trivsel.decimation.blocked.local_mesh`), read from the tiles that meet it, one at
-    a time: ``(tets, rows, ptet)``."""
+    """The tetrahedra that meet the box ``lo`` to ``hi``, their rows, and each of the box's
+    points' tetrahedron (:func:`trivsel.decimation.blocked.mesh_meeting`), read from the tiles
+    that meet the box, one at a time."""
     ts = B.tiles_meeting(plan.cuts, lo, hi)
     per = plan.counts[1] * plan.counts[2]
-    slabs = sorted({t // per for t in ts})
-    with _Members(*(out / TILES / f"{x}.npz" for x in slabs)) as z:
-        return B.local_mesh(plan.shape, lo, hi, ((z[f"tets_{t}"], z[f"rows_{t}"], z[f"owner_{t}"],
-                                                   *B.tile_box(plan.shape, plan.cuts, t)) for t in ts))
+    with _Members(*(out / TILES / f"{x}.npz" for x in sorted({t // per for t in ts}))) as z:
+        return B.mesh_meeting(plan.shape, lo, hi, ((z[f"tets_{t}"], z[f"rows_{t}"], z[f"owner_{t}"],
+                                                     *B.tile_box(plan.shape, plan.cuts, t)) for t in ts))
 
 
 def _box_ids(lo, hi, shape):
@@ -692,92 +689,90 @@ def _box_ids(lo, hi, shape):
     return ((ax[0][:, None, None] * shape[1] + ax[1][None, :, None]) * shape[2] + ax[2][None, None, :]).ravel()
 
 
+def _vertex_values(out, plan, kind, vertices):
+    """The values at ``vertices`` (ascending) that the ``tiles`` jobs (``kind`` "data") or the
+    ``fit`` jobs ("fit") wrote, read from their tiles' tables one tile at a time."""
+    tile = B.tile_of(np.unravel_index(vertices, plan.shape), plan.cuts)
+    ts = np.unique(tile)
+    per = plan.counts[1] * plan.counts[2]
+    folder, name = (out / TILES, "values") if kind == "data" else (out / "fit", "fitted")
+    got = np.empty(len(vertices))
+    with _Members(*(folder / f"{x}.npz" for x in sorted({int(t) // per for t in ts}))) as z:
+        for t in ts:
+            mine = np.flatnonzero(tile == t)
+            v = z[f"vertices_{t}"]
+            got[mine] = z[f"{name}_{t}"][np.searchsorted(v, vertices[mine])]
+    return got
+
+
 def _fit(out, st, slab):
     """The least-squares values of the vertices of slab ``slab``'s tiles: each tile solved as
-    :func:`trivsel.decimation.blocked.tile_fit` solves it, from the mesh and the samples of the
-    box its solve may reach, widened by the longest tetrahedron (the same values, to the bit)."""
+    :func:`trivsel.decimation.blocked.tile_fit` solves it, from the tetrahedra that meet the box
+    its solve may reach and the samples of that box alone
+    (:func:`trivsel.decimation.blocked.fit_tile`: the same values, to the bit)."""
     plan = st.plan
-    shape = np.asarray(plan.shape, np.int64)
-    ext = _extent(out)
     vol = _open(st.cfg)
 
     def fits():
         for t, _, _ in st.blocks_of(slab):
-            rlo, rhi = B.fit_reach(plan.shape, plan.cuts, t)
-            lo, hi = np.maximum(rlo - ext, 0), np.minimum(rhi + ext, shape - 1)
+            lo, hi = B.fit_reach(plan.shape, plan.cuts, t)
             tets, _, ptet = _neighbourhood(out, plan, lo, hi)
-            dims = tuple(int(d) for d in hi - lo + 1)
-            f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)
-            cuts = [np.asarray(c, np.int64) - o for c, o in zip(plan.cuts, lo)]
-            verts = np.flatnonzero(ptet == -1)
-            fitted = B.tile_fit(dims, cuts, tets, ptet, verts, f, tiles=[t])
-            own = B.tile_of(np.unravel_index(verts, dims), cuts) == t
-            yield {f"vertices_{t}": _box_ids(lo, hi, plan.shape)[verts[own]], f"fitted_{t}": fitted[own]}
+            verts = np.unique(tets)
+            own, fitted = B.fit_tile(plan.shape, plan.cuts, t, tets, ptet, lo, hi, _read_box(vol, lo, hi), verts,
+                                     _vertex_values(out, plan, "data", verts))
+            yield {f"vertices_{t}": own, f"fitted_{t}": fitted}
 
     _atomic_savez_each(out / "fit" / f"{slab}.npz", fits())
 
 
-def _vertex_values(out, plan, kind, lo, hi):
-    """The vertices (ascending) and their values that the ``kind`` jobs (``fit``: fitted;
-    ``pieces``: data) wrote for the tiles that meet the box ``lo`` to ``hi``."""
-    ts = B.tiles_meeting(plan.cuts, lo, hi)
-    per = plan.counts[1] * plan.counts[2]
-    name = "fitted" if kind == "fit" else "values"
-    folder = out / ("fit" if kind == "fit" else "sums")
-    with _Members(*(folder / f"{x}.npz" for x in sorted({t // per for t in ts}))) as z:
-        v = np.concatenate([z[f"vertices_{t}"] for t in ts])
-        x = np.concatenate([z[f"{name}_{t}"] for t in ts])
-    order = np.argsort(v, kind="stable")
-    return v[order], x[order]
-
-
 def _pieces(out, st, slab):
-    """Slab ``slab``'s tiles: each one's piece of the mesh (its tetrahedra, with the values and
-    fitted values of their corners), the errors at its points (as sums,
-    :class:`trivsel.norms.ErrorSums`), and its vertices with their values.  Each tile reads the
-    mesh and the samples of its box widened by the longest tetrahedron, which holds its
-    tetrahedra and the tetrahedron of each of its points."""
+    """Slab ``slab``'s tiles: each one's piece of the mesh (the tetrahedra whose lowest corner
+    lies in it, with the values and fitted values of their corners) and the errors at its
+    points, as sums (:class:`trivsel.norms.ErrorSums`).  Each tile reads the tetrahedra that
+    meet it, the samples of its box and the values of those tetrahedra's corners."""
     from ..norms import ErrorSums
 
     plan = st.plan
     shape = np.asarray(plan.shape, np.int64)
-    ext = _extent(out)
     vol = _open(st.cfg)
-    fit = st.fit
 
-    def results(tiles):
+    def results():
         for t, _, _ in st.blocks_of(slab):
-            blk = np.unravel_index(t, plan.counts)
-            tlo, thi = B.tile_box(plan.shape, plan.cuts, t)
-            lo, hi = np.maximum(tlo - ext, 0), np.minimum(thi + ext, shape - 1)
+            lo, hi = B.tile_box(plan.shape, plan.cuts, t)
             tets, _, ptet = _neighbourhood(out, plan, lo, hi)
-            dims = tuple(int(d) for d in hi - lo + 1)
-            ids = _box_ids(lo, hi, plan.shape)
+            verts = np.unique(tets)
+            data_at = (verts, _vertex_values(out, plan, "data", verts))
+            pts = _box_ids(lo, hi, plan.shape)
             f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)
-            pts = _box_ids(tlo - lo, thi - lo, dims)  # the tile's points in the box
-            verts, w, value = B.point_weights_of(dims, tets, ptet, pts, f)  # as the kernels interpolate
-            ijk = np.stack(np.unravel_index(ids[pts], plan.shape), axis=1)
+
+            def value_of(p):  # the samples in the tile's box, the vertices' values beyond it
+                p = np.asarray(p, np.int64)
+                ijk = np.unravel_index(p, plan.shape)
+                inbox = np.all([(x >= a) & (x <= b) for x, a, b in zip(ijk, lo, hi)], axis=0)
+                got = data_at[1][np.minimum(np.searchsorted(verts, p), len(verts) - 1)]
+                got[inbox] = f[np.ravel_multi_index(tuple(x[inbox] - a for x, a in zip(ijk, lo)), tuple(hi - lo + 1))]
+                return got
+
+            corners, w, value = B.weights_in(plan.shape, tets, ptet, pts, value_of)  # as the kernels interpolate
+            ijk = np.stack(np.unravel_index(pts, plan.shape), axis=1)
             inner = np.all((ijk > 0) & (ijk < shape - 1), axis=1)
             del ijk
             data = ErrorSums()
-            data.add(f[pts] - value, inner)
+            data.add(f - value, inner)
             got = {f"data_{t}": data.to_array()}
             fit_at = None
-            if fit:
-                fit_at = _vertex_values(out, plan, "fit", lo, hi)
-                at = np.searchsorted(fit_at[0], ids[verts])
+            if st.fit:
+                fit_at = (verts, _vertex_values(out, plan, "fit", verts))
                 sums = ErrorSums()
-                sums.add(f[pts] - np.einsum("ij,ij->i", w, fit_at[1][at]), inner)
+                sums.add(f - np.einsum("ij,ij->i", w, fit_at[1][np.searchsorted(verts, corners)]), inner)
                 got[f"fit_{t}"] = sums.to_array()
-            del verts, w, value
-            own = pts[ptet[pts] == -1]
-            got[f"vertices_{t}"], got[f"values_{t}"] = ids[own], f[own]
-            corners = tiles[f"tets_{t}"]
-            _write_mesh(out / "pieces" / f"{item_name(blk)}.vtu", vol, plan.shape, corners, (ids, f), fit_at)
+            del corners, w, value
+            mine = B.tile_of(np.unravel_index(tets.min(axis=1), plan.shape), plan.cuts) == t
+            _write_mesh(out / "pieces" / f"{item_name(np.unravel_index(t, plan.counts))}.vtu", vol, plan.shape,
+                        tets[mine], data_at, fit_at)
             yield got
 
-    with _Members(out / TILES / f"{slab}.npz") as tiles:
-        _atomic_savez_each(out / "sums" / f"{slab}.npz", results(tiles))
+    _atomic_savez_each(out / "sums" / f"{slab}.npz", results())
 
 
 def _finish(out, st):
@@ -807,14 +802,17 @@ def _finish(out, st):
     write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
     if cfg.get("merged", True):
         T = np.empty((mesh["tetrahedra"], 4), B.index_type(N))
+        vertices = []
         for slab in st.slabs:  # each tile's tetrahedra back to their rows
             with _Members(out / TILES / f"{slab}.npz") as z:
                 for t, _, _ in st.blocks_of(slab):
                     T[z[f"rows_{t}"]] = z[f"tets_{t}"]
-        whole = tuple(np.asarray(plan.shape) - 1)
-        _write_mesh(staged / "mesh.vtu", _open(cfg), plan.shape, T, _vertex_values(out, plan, "pieces", (0,) * 3, whole),
-                    _vertex_values(out, plan, "fit", (0,) * 3, whole) if fit else None)
-        del T
+                    vertices.append(z[f"vertices_{t}"])
+        vertices = np.sort(np.concatenate(vertices))
+        _write_mesh(staged / "mesh.vtu", _open(cfg), plan.shape, T,
+                    (vertices, _vertex_values(out, plan, "data", vertices)),
+                    (vertices, _vertex_values(out, plan, "fit", vertices)) if fit else None)
+        del T, vertices
     tau, _ = _tau(out)
     target = st.target()
     m = int(mesh["vertices"])
@@ -919,7 +917,7 @@ def job_resources(cfg, plan, kind):
         secs = 60 + 2e-6 * N
     elif kind in ("fit", "pieces"):  # a slab's tiles one at a time, each with the box around it
         width = np.array([max(np.diff(c)) for c in plan.cuts])
-        reach = 2 * int(TET_EXTENT_BLOCKS * block) + (2 * np.maximum(width // 2, B.FIT_MARGIN) if kind == "fit" else 0)
+        reach = 2 * np.maximum(width // 2, B.FIT_MARGIN) if kind == "fit" else 0
         box = float(np.prod(np.minimum(width + reach + 1, plan.shape)))
         dense = mesh_tets(cfg, plan) / N
         mem = JOB_BASE_BYTES + box * (FIT_BYTES_PER_POINT + FIT_BYTES_PER_TET * dense if kind == "fit"

@@ -965,20 +965,30 @@ def point_weights_of(shape, tets, ptet, points, values=None):
     within an E_inf tolerance is the same number here, to the bit.
     """
     points = np.asarray(points, np.int64)
+    return weights_in(shape, tets, np.asarray(ptet)[points], points,
+                      None if values is None else (lambda p: np.asarray(values)[p]))
+
+
+def weights_in(shape, tets, rows, points, value_of=None):
+    """:func:`point_weights_of` with each point's tetrahedron given (``rows``: a row of
+    ``tets``, or -1 for a vertex) and the values, where asked for, as a function of point
+    indices (``value_of``), so that a caller needs neither over the whole grid."""
+    points = np.asarray(points, np.int64)
+    rows = np.asarray(rows)
     verts = np.repeat(points[:, None], 4, axis=1)
     w = np.zeros((len(points), 4))
     w[:, 0] = 1.0
-    value = None if values is None else np.asarray(values)[points].astype(np.float64)
-    inside = np.flatnonzero(ptet[points] >= 0)
+    value = None if value_of is None else np.asarray(value_of(points)).astype(np.float64)
+    inside = np.flatnonzero(rows >= 0)
     for part in np.array_split(inside, max(1, len(inside) // 2**20)):  # bounded temporaries
-        corners = tets[ptet[points[part]]]
+        corners = tets[rows[part]]
         lam = lattice_weights(_grid_coordinates(points[part], shape),
                               _grid_coordinates(corners.astype(np.int64, copy=False), shape))
         verts[part] = corners
         w[part] = lam / lam.sum(axis=1, keepdims=True)
         if value is not None:
-            value[part] = lattice_interpolant(lam, np.asarray(values)[corners])
-    return (verts, w) if values is None else (verts, w, value)
+            value[part] = lattice_interpolant(lam, value_of(corners))
+    return (verts, w) if value_of is None else (verts, w, value)
 
 
 #: Rings of tetrahedra around a tile whose vertices its least-squares fit solves for beside
@@ -1034,21 +1044,53 @@ def tet_extent(shape, tets, chunk=1 << 20):
     return ext
 
 
-def mesh_tiles(shape, cuts, tets, ptet):
+def _tile_span(shape, cuts, tets):
+    """For each tetrahedron, along each axis, the first and last tile its corners' box meets:
+    ``(lo, hi)``, two (k, 3) arrays."""
+    ijk = _grid_coordinates(np.asarray(tets, np.int64).ravel(), shape)
+    lo, hi = [], []
+    for a in range(3):
+        c = np.asarray(cuts[a], np.int64)
+        x = ijk[a].reshape(-1, 4)
+        lo.append(np.clip(np.searchsorted(c, x.min(axis=1), side="right") - 1, 0, len(c) - 2))
+        hi.append(np.clip(np.searchsorted(c, x.max(axis=1), side="right") - 1, 0, len(c) - 2))
+    return np.stack(lo, axis=1), np.stack(hi, axis=1)
+
+
+def mesh_tiles(shape, cuts, tets, ptet, chunk=1 << 20):
     """A mesh kept by tile, each tile in turn (a generator, in tile order):
-    ``(tets, rows, owner)``, its tetrahedra (those whose lowest corner lies in it, in the
-    order of ``tets``), their rows in ``tets``, and ``ptet`` over its box (:func:`tile_box`,
-    C order).  Every tetrahedron and every point is in exactly one tile."""
-    tile = tile_of(_grid_coordinates(tets.min(axis=1).astype(np.int64), shape), cuts)
-    order = np.argsort(tile, kind="stable").astype(index_type(len(tets)))
-    n = int(np.prod([len(c) - 1 for c in cuts]))
+    ``(tets, rows, owner)``: the tetrahedra whose corners' box meets the tile's box
+    (:func:`tile_box`; a large tetrahedron is kept by every tile it meets), in the order of
+    ``tets``, their rows in ``tets``, and ``ptet`` over the tile's box (C order).  Every
+    point is in exactly one tile, and so is every tetrahedron's lowest corner."""
+    counts = [len(c) - 1 for c in cuts]
+    n = int(np.prod(counts))
+    tile_ids, row_ids = [], []
+    for s in range(0, len(tets), chunk):  # (tile, row) for every tile a tetrahedron meets
+        lo, hi = _tile_span(shape, cuts, tets[s:s + chunk])
+        width = hi - lo + 1
+        k = width.prod(axis=1)
+        row = np.repeat(np.arange(s, s + len(lo), dtype=np.int64), k)
+        first = np.repeat(np.cumsum(k) - k, k)
+        j = np.arange(len(row), dtype=np.int64) - first  # the j-th tile of its tetrahedron's span
+        w, l0 = width[row - s], lo[row - s]
+        iz = j % w[:, 2]
+        iy = (j // w[:, 2]) % w[:, 1]
+        ix = j // (w[:, 2] * w[:, 1])
+        tile_ids.append((((l0[:, 0] + ix) * counts[1] + l0[:, 1] + iy) * counts[2] + l0[:, 2] + iz).astype(
+            index_type(n)))
+        row_ids.append(row.astype(index_type(len(tets))))
+    tile = np.concatenate(tile_ids) if tile_ids else np.zeros(0, index_type(n))
+    rows = np.concatenate(row_ids) if row_ids else np.zeros(0, index_type(len(tets)))
+    del tile_ids, row_ids
+    order = np.argsort(tile, kind="stable")
     bounds = np.searchsorted(tile[order], np.arange(n + 1))
     del tile
     grid = np.asarray(ptet).reshape(tuple(shape))
     for t in range(n):
         lo, hi = tile_box(shape, cuts, t)
-        rows = order[bounds[t]:bounds[t + 1]]
-        yield tets[rows], rows, grid[tuple(slice(int(a), int(b) + 1) for a, b in zip(lo, hi))].ravel()
+        r = rows[order[bounds[t]:bounds[t + 1]]]
+        yield tets[r], r, grid[tuple(slice(int(a), int(b) + 1) for a, b in zip(lo, hi))].ravel()
 
 
 def tiles_meeting(cuts, lo, hi):
@@ -1063,46 +1105,171 @@ def tiles_meeting(cuts, lo, hi):
     return [int((i * n[1] + j) * n[2] + k) for i in along[0] for j in along[1] for k in along[2]]
 
 
-def local_mesh(shape, lo, hi, tiles):
-    """The part of a mesh kept by tiles that lies in the box ``lo`` to ``hi`` (both included),
-    as a mesh of that box's own grid, for a job that holds one tile's surroundings and not the
-    whole grid.
+def mesh_meeting(shape, lo, hi, tiles):
+    """The part of a mesh kept by tile (:func:`mesh_tiles`) that meets the box ``lo`` to
+    ``hi`` (both included), for a job that holds one tile's surroundings, not the whole grid.
 
-    ``tiles`` are the tiles whose boxes meet it (:func:`tiles_meeting`), in tile order, each
-    ``(tets, rows, owner, tlo, thi)``: what :func:`mesh_tiles` gives for it (its tetrahedra,
-    over global point indices, their rows in the whole mesh, and the whole mesh's ``ptet`` over
-    its box; a row, -1 for a vertex) and its box (:func:`tile_box`).  Returns ``(tets, rows, ptet)``: the
-    tetrahedra with every corner in the box (over the box's point indices, in the order
-    given), their rows in the whole mesh, and each of the box's points' local row (-1 for a
-    vertex, -2 where its tetrahedron has a corner outside the box)."""
+    ``tiles`` are the tiles that meet the box (:func:`tiles_meeting`), each ``(tets, rows,
+    owner, tlo, thi)``: what :func:`mesh_tiles` gives for it, and its box (:func:`tile_box`).
+    Returns ``(tets, rows, ptet)``: the tetrahedra whose corners' box meets the box (global
+    point indices, in the order of their rows), their rows in the whole mesh, and each of the
+    box's points' tetrahedron (C order of the box; a row of the returned ``tets``, -1 for a
+    vertex).  Every tetrahedron that holds a point of the box or has a corner in it is there."""
     lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
     dims = hi - lo + 1
     ptet = np.full(int(np.prod(dims)), -2, np.int64)
     keep_t, keep_r = [], []
     for tets, rows, owner, tlo, thi in tiles:
         ijk = _grid_coordinates(np.asarray(tets, np.int64).ravel(), shape)
-        inside = np.ones(len(tets) * 4, bool)
+        meets = np.ones(len(tets), bool)
         for a in range(3):
-            inside &= (ijk[a] >= lo[a]) & (ijk[a] <= hi[a])
-        inside = inside.reshape(-1, 4).all(axis=1)
-        local = ((ijk[0] - lo[0]) * dims[1] + ijk[1] - lo[1]) * dims[2] + ijk[2] - lo[2]
-        keep_t.append(local.reshape(-1, 4)[inside])
-        keep_r.append(np.asarray(rows, np.int64)[inside])
+            x = ijk[a].reshape(-1, 4)
+            meets &= (x.min(axis=1) <= hi[a]) & (x.max(axis=1) >= lo[a])
+        keep_t.append(np.asarray(tets)[meets])
+        keep_r.append(np.asarray(rows, np.int64)[meets])
         a0, a1 = np.maximum(tlo, lo), np.minimum(thi, hi)  # the tile's points in the box
         if np.any(a0 > a1):
             continue
         src = np.asarray(owner).reshape(tuple(np.asarray(thi) - tlo + 1))
         sub = src[tuple(slice(int(x - t), int(y - t) + 1) for x, y, t in zip(a0, a1, tlo))]
         ptet.reshape(tuple(dims))[tuple(slice(int(x - o), int(y - o) + 1) for x, y, o in zip(a0, a1, lo))] = sub
-    tets = np.concatenate(keep_t) if keep_t else np.zeros((0, 4), np.int64)
     rows = np.concatenate(keep_r) if keep_r else np.zeros(0, np.int64)
-    by_row = np.argsort(rows, kind="stable")
-    inside = ptet >= 0  # a row of the whole mesh, to its place among the tetrahedra kept
-    at = np.minimum(np.searchsorted(rows[by_row], ptet[inside]), max(len(rows) - 1, 0))
-    found = rows[by_row][at] == ptet[inside] if len(rows) else np.zeros(int(inside.sum()), bool)
-    ptet[inside] = np.where(found, by_row[at], -2)
-    t = index_type(max(int(np.prod(dims)), len(tets)))
-    return tets.astype(t), rows, ptet.astype(np.int64)
+    rows, first = np.unique(rows, return_index=True)  # a tetrahedron kept by several tiles once
+    tets = (np.concatenate(keep_t) if keep_t else np.zeros((0, 4), np.int64))[first]
+    inside = ptet >= 0  # a row of the whole mesh, to its place among those kept
+    ptet[inside] = np.searchsorted(rows, ptet[inside])
+    return tets, rows, ptet
+
+
+class _TileSolver:
+    """The least-squares solve of one tile at a time (:func:`tile_fit`) over a mesh given by
+    its tetrahedra (global point indices), its vertices (ascending) with their data values,
+    and lookups by global point index: ``col_of`` a vertex's place among the vertices (-1
+    for another point), ``ptet_of`` a point's tetrahedron (-1 for a vertex) and ``f_of`` its
+    data value.  The lookups are asked only for points in the box the solve may reach
+    (:func:`fit_reach`) and, ``col_of``, for the corners of the tetrahedra."""
+
+    def __init__(self, shape, cuts, tets, vertices, vertex_values, col_of, ptet_of, f_of):
+        self.shape, self.cuts, self.tets = shape, cuts, tets
+        self.vertices, self.fv = vertices, np.asarray(vertex_values, np.float64)
+        self.col_of, self.ptet_of, self.f_of = col_of, ptet_of, f_of
+        self.vijk = np.stack(_grid_coordinates(vertices, shape), axis=1)
+        # the tetrahedra by their lowest corner (a point index, so C order: x first), and the
+        # longest extent of a tetrahedron along an axis: a tetrahedron with a corner in a box
+        # has its lowest corner in the box widened by that extent below it
+        lowest = tets.min(axis=1)
+        self.by_lowest = np.argsort(lowest, kind="stable").astype(index_type(len(tets)))
+        self.lowest = lowest[self.by_lowest]
+        self.ext = tet_extent(shape, tets)
+        self.touched = np.zeros(len(tets), bool)  # both reset after each tile
+        self.unknown = np.zeros(len(vertices), bool)
+        self.loc = np.full(len(vertices), -1, np.int64)
+
+    def around(self, lo, hi):
+        """The tetrahedra with a corner in the box [lo, hi], and maybe some more."""
+        shape, yz = self.shape, int(self.shape[1]) * int(self.shape[2])
+        lo = np.maximum(lo - self.ext, 0)
+        a, b = np.searchsorted(self.lowest, np.array([lo[0] * yz, (hi[0] + 1) * yz], self.lowest.dtype))
+        _, y, z = _grid_coordinates(self.lowest[a:b], shape)
+        return self.by_lowest[a:b][(y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])]
+
+    def solve(self, b, own, rings):
+        """The fitted values of the vertices ``own`` (places among the vertices: tile ``b``'s)."""
+        import scipy.sparse as sp
+
+        from ..fitting import solve_normal_equations
+
+        shape, tets, vijk, unknown, touched, loc = self.shape, self.tets, self.vijk, self.unknown, self.touched, \
+            self.loc
+        unknown[own] = True
+        u = own
+        cap_lo, cap_hi = fit_reach(shape, self.cuts, b)
+        rows = np.zeros(0, np.int64)  # the tetrahedra looked at so far, their corners' columns
+        ct = np.zeros((0, 4), np.int64)
+        for ring in range(rings + 1):
+            box = vijk[u].min(axis=0), vijk[u].max(axis=0)
+            more = self.around(*box)  # the window grows with the rings: only its new tetrahedra are read
+            touched[rows] = True
+            more = more[~touched[more]]
+            touched[rows] = False
+            rows = np.concatenate([rows, more])
+            ct = np.concatenate([ct, np.asarray(self.col_of(tets[more]), np.int64).reshape(-1, 4)])
+            hit = unknown[ct].any(axis=1)
+            if ring == rings:
+                rows = rows[hit]
+                break
+            new = np.unique(ct[hit][~unknown[ct[hit]]])
+            new = new[np.all((vijk[new] >= cap_lo) & (vijk[new] <= cap_hi), axis=1)]
+            unknown[new] = True
+            u = np.concatenate([u, new])
+        del ct
+        u = np.sort(u)
+        touched[rows] = True
+        # the grid points in those tetrahedra: within their corners' box
+        ijk = _grid_coordinates(tets[rows].ravel().astype(np.int64), shape)
+        box = [np.arange(max(int(x.min()), int(cap_lo[a])), min(int(x.max()), int(cap_hi[a])) + 1)
+               for a, x in enumerate(ijk)]
+        del ijk
+        pts = ((box[0][:, None, None] * shape[1] + box[1][None, :, None]) * shape[2]
+               + box[2][None, None, :]).ravel()
+        owner = np.asarray(self.ptet_of(pts), np.int64)
+        inside = owner >= 0
+        keep = np.zeros(len(pts), bool)
+        keep[inside] = touched[owner[inside]]
+        keep[~inside] = unknown[self.col_of(pts[~inside])]
+        pts, owner = pts[keep], owner[keep]
+        touched[rows] = False
+        loc[u] = np.arange(len(u))
+        verts, w = weights_in(shape, tets, owner, pts)
+        cv = np.asarray(self.col_of(verts), np.int64).reshape(verts.shape)
+        lc = loc[cv]
+        fixed = (lc < 0) & (w > 0)
+        rhs = self.f_of(pts) - np.einsum("ij,ij->i", np.where(fixed, w, 0.0), self.fv[cv])
+        use = (lc >= 0) & (w > 0)
+        r = np.broadcast_to(np.arange(len(pts))[:, None], lc.shape)
+        A = sp.csr_matrix((w[use], (r[use], lc[use])), shape=(len(pts), len(u)))
+        x, _ = solve_normal_equations((A.T @ A).tocsr(), A.T @ rhs, self.fv[u])
+        x = x[loc[own]]
+        unknown[u] = False
+        loc[u] = -1
+        return x
+
+
+def _sorted_lookup(keys, missing=-1):
+    """A lookup of the places of point indices among ``keys`` (ascending): ``missing`` for
+    those not among them."""
+    def at(p):
+        p = np.asarray(p, np.int64)
+        i = np.minimum(np.searchsorted(keys, p), max(len(keys) - 1, 0))
+        found = keys[i] == p if len(keys) else np.zeros(p.shape, bool)
+        return np.where(found, i, missing)
+
+    return at
+
+
+def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values, *, rings=FIT_RINGS):
+    """Tile ``t``'s least-squares vertex values as :func:`tile_fit` solves them, from its
+    surroundings alone: the tetrahedra that meet the box its solve may reach
+    (:func:`fit_reach`; ``tets``, global point indices), each point's tetrahedron (``ptet``,
+    a row of ``tets``, -1 for a vertex) and the data ``values`` over that box ``lo`` to
+    ``hi``, and the vertices of ``tets`` (ascending) with their data values.  The same
+    values as the whole mesh's :func:`tile_fit`, to the bit.  Returns the tile's vertices
+    (ascending) and their fitted values."""
+    lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
+    dims = hi - lo + 1
+    vertices = np.asarray(vertices, np.int64)
+
+    def in_box(p):
+        i, j, k = _grid_coordinates(np.asarray(p, np.int64), shape)
+        return ((i - lo[0]) * dims[1] + j - lo[1]) * dims[2] + k - lo[2]
+
+    values = np.asarray(values, np.float64).reshape(-1)
+    solver = _TileSolver(shape, cuts, tets, vertices, vertex_values, _sorted_lookup(vertices),
+                         lambda p: ptet[in_box(p)], lambda p: values[in_box(p)])
+    own = np.flatnonzero(tile_of(tuple(solver.vijk.T), cuts) == t)
+    if len(own) == 0:
+        return vertices[own], np.zeros(0)
+    return vertices[own], solver.solve(t, own, rings)
 
 
 def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS, tiles=None):
@@ -1138,105 +1305,30 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS, tile
     rings : int
         Rings of tetrahedra around a tile whose vertices are solved for with it.
     tiles : iterable of int, optional
-        The tiles to solve (all by default).  A tile's solve reads only the tetrahedra with
-        their lowest corner in its box widened as above and by the longest extent of a
-        tetrahedron, and ``ptet`` and ``values`` in that box widened again by the extent, so a
-        caller may pass that neighbourhood alone, as a grid of its own (the last jobs of
-        ``trivsel blocks`` do): the values are the same, to the bit.
+        The tiles to solve (all by default).  :func:`fit_tile` solves one from its
+        surroundings alone, to the same values.
 
     Returns
     -------
     (m,) float
         The fitted values at ``vertices`` (NaN at those of the tiles not solved).
     """
-    import scipy.sparse as sp
-
-    from ..fitting import solve_normal_equations
-
     f = np.asarray(values, np.float64).reshape(-1)
     vertices = np.asarray(vertices, np.int64)
     m = len(vertices)
     col = np.full(f.shape[0], -1, index_type(m))
     col[vertices] = np.arange(m, dtype=col.dtype)
     counts = [len(c) - 1 for c in cuts]
-    vijk = np.stack(_grid_coordinates(vertices, shape), axis=1)
-    vt = tile_of(tuple(vijk.T), cuts)
+    solver = _TileSolver(shape, cuts, tets, vertices, f[vertices], col.__getitem__, ptet.__getitem__, f.__getitem__)
+    vt = tile_of(tuple(solver.vijk.T), cuts)
     vorder = np.argsort(vt, kind="stable")
     vbounds = np.searchsorted(vt[vorder], np.arange(int(np.prod(counts)) + 1))
     del vt
-    # the tetrahedra by their lowest corner (a point index, so C order: x first), and the
-    # longest extent of a tetrahedron along an axis: a tetrahedron with a corner in a box has
-    # its lowest corner in the box widened by that extent below it
-    lowest = tets.min(axis=1)
-    by_lowest = np.argsort(lowest, kind="stable").astype(index_type(len(tets)))
-    lowest = lowest[by_lowest]
-    ext = tet_extent(shape, tets)
-    yz = int(shape[1]) * int(shape[2])
-
-    def around(lo, hi):  # the tetrahedra with a corner in the box [lo, hi], and maybe some more
-        lo = np.maximum(lo - ext, 0)
-        a, b = np.searchsorted(lowest, np.array([lo[0] * yz, (hi[0] + 1) * yz], lowest.dtype))
-        _, y, z = _grid_coordinates(lowest[a:b], shape)
-        return by_lowest[a:b][(y >= lo[1]) & (y <= hi[1]) & (z >= lo[2]) & (z <= hi[2])]
-
-    touched = np.zeros(len(tets), bool)  # both reset after each tile
-    unknown = np.zeros(m, bool)
-    loc = np.full(m, -1, np.int64)
     fitted = np.full(m, np.nan)
     for b in (range(int(np.prod(counts))) if tiles is None else tiles):
         own = vorder[vbounds[b]:vbounds[b + 1]]
-        if len(own) == 0:
-            continue
-        unknown[own] = True
-        u = own
-        cap_lo, cap_hi = fit_reach(shape, cuts, b)
-        rows = np.zeros(0, np.int64)  # the tetrahedra looked at so far, their corners' columns
-        ct = np.zeros((0, 4), col.dtype)
-        for ring in range(rings + 1):
-            box = vijk[u].min(axis=0), vijk[u].max(axis=0)
-            more = around(*box)  # the window grows with the rings: only its new tetrahedra are read
-            touched[rows] = True
-            more = more[~touched[more]]
-            touched[rows] = False
-            rows = np.concatenate([rows, more])
-            ct = np.concatenate([ct, col[tets[more]]])
-            hit = unknown[ct].any(axis=1)
-            if ring == rings:
-                rows = rows[hit]
-                break
-            new = np.unique(ct[hit][~unknown[ct[hit]]])
-            new = new[np.all((vijk[new] >= cap_lo) & (vijk[new] <= cap_hi), axis=1)]
-            unknown[new] = True
-            u = np.concatenate([u, new])
-        del ct
-        u = np.sort(u)
-        touched[rows] = True
-        # the grid points in those tetrahedra: within their corners' box
-        ijk = _grid_coordinates(tets[rows].ravel().astype(np.int64), shape)
-        box = [np.arange(max(int(x.min()), int(cap_lo[a])), min(int(x.max()), int(cap_hi[a])) + 1)
-               for a, x in enumerate(ijk)]
-        del ijk
-        pts = ((box[0][:, None, None] * shape[1] + box[1][None, :, None]) * shape[2]
-               + box[2][None, None, :]).ravel()
-        owner = ptet[pts]
-        inside = owner >= 0
-        keep = np.zeros(len(pts), bool)
-        keep[inside] = touched[owner[inside]]
-        keep[~inside] = unknown[col[pts[~inside]]]
-        pts = pts[keep]
-        touched[rows] = False
-        loc[u] = np.arange(len(u))
-        verts, w = point_weights_of(shape, tets, ptet, pts)
-        lc = loc[col[verts]]
-        fixed = (lc < 0) & (w > 0)
-        rhs = f[pts] - np.einsum("ij,ij->i", np.where(fixed, w, 0.0), f[verts])
-        use = (lc >= 0) & (w > 0)
-        r = np.broadcast_to(np.arange(len(pts))[:, None], lc.shape)
-        A = sp.csr_matrix((w[use], (r[use], lc[use])), shape=(len(pts), len(u)))
-        x, _ = solve_normal_equations((A.T @ A).tocsr(), A.T @ rhs, f[vertices[u]])
-        fitted[own] = x[loc[own]]
-        unknown[u] = False
-        loc[u] = -1
+        if len(own):
+            fitted[own] = solver.solve(b, own, rings)
     return fitted
 
 
