@@ -711,7 +711,8 @@ def test_a_tile_solved_from_its_surroundings_alone_is_the_whole_tile_fit(ridge_i
     reach (``mesh_meeting``), the tetrahedra are exactly those that meet the box, with each
     point's tetrahedron; the tile's fit from them alone (``fit_tile``) is ``tile_fit``'s over
     the whole mesh, to the bit."""
-    from trivsel.decimation.blocked import fit_reach, fit_tile, mesh_meeting, mesh_tiles, tile_box, tiles_meeting
+    from trivsel.decimation.blocked import (fit_reach, fit_tile, mesh_meeting, mesh_tiles, tet_boxes, tet_extent,
+                                            tile_box, tiles_meeting)
 
     vol, out, _ = ridge_in_blocks
     shape, T, ptet, f = vol.shape, out["tets"], out["ptet"], vol.reshape(-1)
@@ -733,14 +734,16 @@ def test_a_tile_solved_from_its_surroundings_alone_is_the_whole_tile_fit(ridge_i
     vtile = tile_of(np.unravel_index(out["vertices"], shape), cuts)
     for t in range(len(tiles)):
         lo, hi = fit_reach(shape, cuts, t)
-        tets, rows, lptet = mesh_meeting(shape, lo, hi, [(*tiles[u], *tile_box(shape, cuts, u))
-                                                         for u in tiles_meeting(cuts, lo, hi)])
+        tets, rows, lptet, ext = mesh_meeting(shape, lo, hi, [(*tiles[u], *tile_box(shape, cuts, u),
+                                                                tet_boxes(shape, tiles[u][0]))
+                                                               for u in tiles_meeting(cuts, lo, hi)])
         assert np.array_equal(rows, meeting(lo, hi)) and np.array_equal(tets, T[rows])
+        assert ext == tet_extent(shape, tets)
         ids = np.ravel_multi_index(np.meshgrid(*[np.arange(a, b + 1) for a, b in zip(lo, hi)], indexing="ij"),
                                    shape).ravel()
         g = ptet[ids]
         assert np.array_equal(lptet == -1, g < 0) and np.array_equal(rows[lptet[g >= 0]], g[g >= 0])
         verts = np.unique(tets)
-        own, got = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts])
+        own, got = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts], extent=ext)
         assert np.array_equal(own, out["vertices"][vtile == t]) and len(own)
         assert np.array_equal(got, whole[col[own]])

@@ -673,14 +673,20 @@ def _tiles(out, st):
 
 
 def _neighbourhood(out, plan, lo, hi):
-    """The tetrahedra that meet the box ``lo`` to ``hi``, their rows, and each of the box's
-    points' tetrahedron (:func:`trivsel.decimation.blocked.mesh_meeting`), read from the tiles
-    that meet the box, one at a time."""
+    """The tetrahedra that meet the box ``lo`` to ``hi``, their rows, each of the box's points'
+    tetrahedron and their longest extent (:func:`trivsel.decimation.blocked.mesh_meeting`),
+    read from the tiles that meet the box, one at a time."""
     ts = B.tiles_meeting(plan.cuts, lo, hi)
     per = plan.counts[1] * plan.counts[2]
+
+    def tiles(z):
+        for t in ts:
+            tets = z[f"tets_{t}"]
+            yield (tets, z[f"rows_{t}"], z[f"owner_{t}"], *B.tile_box(plan.shape, plan.cuts, t),
+                   B.tet_boxes(plan.shape, tets))
+
     with _Members(*(out / TILES / f"{x}.npz" for x in sorted({t // per for t in ts}))) as z:
-        return B.mesh_meeting(plan.shape, lo, hi, ((z[f"tets_{t}"], z[f"rows_{t}"], z[f"owner_{t}"],
-                                                     *B.tile_box(plan.shape, plan.cuts, t)) for t in ts))
+        return B.mesh_meeting(plan.shape, lo, hi, tiles(z))
 
 
 def _box_ids(lo, hi, shape):
@@ -716,10 +722,10 @@ def _fit(out, st, slab):
     def fits():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.fit_reach(plan.shape, plan.cuts, t)
-            tets, _, ptet = _neighbourhood(out, plan, lo, hi)
+            tets, _, ptet, ext = _neighbourhood(out, plan, lo, hi)
             verts = np.unique(tets)
             own, fitted = B.fit_tile(plan.shape, plan.cuts, t, tets, ptet, lo, hi, _read_box(vol, lo, hi), verts,
-                                     _vertex_values(out, plan, "data", verts))
+                                     _vertex_values(out, plan, "data", verts), extent=ext)
             yield {f"vertices_{t}": own, f"fitted_{t}": fitted}
 
     _atomic_savez_each(out / "fit" / f"{slab}.npz", fits())
@@ -739,7 +745,7 @@ def _pieces(out, st, slab):
     def results():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.tile_box(plan.shape, plan.cuts, t)
-            tets, _, ptet = _neighbourhood(out, plan, lo, hi)
+            tets, _, ptet, _ = _neighbourhood(out, plan, lo, hi)
             verts = np.unique(tets)
             data_at = (verts, _vertex_values(out, plan, "data", verts))
             pts = _box_ids(lo, hi, plan.shape)

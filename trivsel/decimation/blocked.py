@@ -1105,28 +1105,35 @@ def tiles_meeting(cuts, lo, hi):
     return [int((i * n[1] + j) * n[2] + k) for i in along[0] for j in along[1] for k in along[2]]
 
 
+def tet_boxes(shape, tets):
+    """The box of each tetrahedron's corners (global point indices): ``(lo, hi)``, two (k, 3)
+    int64 arrays of grid coordinates."""
+    x = np.stack(_grid_coordinates(np.asarray(tets, np.int64).ravel(), shape), axis=1).reshape(-1, 4, 3)
+    return x.min(axis=1), x.max(axis=1)
+
+
 def mesh_meeting(shape, lo, hi, tiles):
     """The part of a mesh kept by tile (:func:`mesh_tiles`) that meets the box ``lo`` to
     ``hi`` (both included), for a job that holds one tile's surroundings, not the whole grid.
 
     ``tiles`` are the tiles that meet the box (:func:`tiles_meeting`), each ``(tets, rows,
-    owner, tlo, thi)``: what :func:`mesh_tiles` gives for it, and its box (:func:`tile_box`).
-    Returns ``(tets, rows, ptet)``: the tetrahedra whose corners' box meets the box (global
-    point indices, in the order of their rows), their rows in the whole mesh, and each of the
-    box's points' tetrahedron (C order of the box; a row of the returned ``tets``, -1 for a
-    vertex).  Every tetrahedron that holds a point of the box or has a corner in it is there."""
+    owner, tlo, thi, boxes)``: what :func:`mesh_tiles` gives for it, its box (:func:`tile_box`)
+    and its tetrahedra's boxes (:func:`tet_boxes`).  Returns ``(tets, rows, ptet, extent)``:
+    the tetrahedra whose corners' box meets the box (global point indices, in the order of
+    their rows), their rows in the whole mesh, each of the box's points' tetrahedron (C order
+    of the box; a row of the returned ``tets``, -1 for a vertex), and the longest extent of
+    those tetrahedra along an axis (:func:`tet_extent`).  Every tetrahedron that holds a point
+    of the box or has a corner in it is there."""
     lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
     dims = hi - lo + 1
     ptet = np.full(int(np.prod(dims)), -2, np.int64)
-    keep_t, keep_r = [], []
-    for tets, rows, owner, tlo, thi in tiles:
-        ijk = _grid_coordinates(np.asarray(tets, np.int64).ravel(), shape)
-        meets = np.ones(len(tets), bool)
-        for a in range(3):
-            x = ijk[a].reshape(-1, 4)
-            meets &= (x.min(axis=1) <= hi[a]) & (x.max(axis=1) >= lo[a])
+    keep_t, keep_r, ext = [], [], 0
+    for tets, rows, owner, tlo, thi, (bmin, bmax) in tiles:
+        meets = np.all((bmin <= hi) & (bmax >= lo), axis=1)
         keep_t.append(np.asarray(tets)[meets])
         keep_r.append(np.asarray(rows, np.int64)[meets])
+        if meets.any():
+            ext = max(ext, int((bmax[meets] - bmin[meets]).max()))
         a0, a1 = np.maximum(tlo, lo), np.minimum(thi, hi)  # the tile's points in the box
         if np.any(a0 > a1):
             continue
@@ -1138,7 +1145,7 @@ def mesh_meeting(shape, lo, hi, tiles):
     tets = (np.concatenate(keep_t) if keep_t else np.zeros((0, 4), np.int64))[first]
     inside = ptet >= 0  # a row of the whole mesh, to its place among those kept
     ptet[inside] = np.searchsorted(rows, ptet[inside])
-    return tets, rows, ptet
+    return tets, rows, ptet, ext
 
 
 class _TileSolver:
@@ -1149,7 +1156,7 @@ class _TileSolver:
     data value.  The lookups are asked only for points in the box the solve may reach
     (:func:`fit_reach`) and, ``col_of``, for the corners of the tetrahedra."""
 
-    def __init__(self, shape, cuts, tets, vertices, vertex_values, col_of, ptet_of, f_of):
+    def __init__(self, shape, cuts, tets, vertices, vertex_values, col_of, ptet_of, f_of, ext=None):
         self.shape, self.cuts, self.tets = shape, cuts, tets
         self.vertices, self.fv = vertices, np.asarray(vertex_values, np.float64)
         self.col_of, self.ptet_of, self.f_of = col_of, ptet_of, f_of
@@ -1160,7 +1167,7 @@ class _TileSolver:
         lowest = tets.min(axis=1)
         self.by_lowest = np.argsort(lowest, kind="stable").astype(index_type(len(tets)))
         self.lowest = lowest[self.by_lowest]
-        self.ext = tet_extent(shape, tets)
+        self.ext = tet_extent(shape, tets) if ext is None else int(ext)
         self.touched = np.zeros(len(tets), bool)  # both reset after each tile
         self.unknown = np.zeros(len(vertices), bool)
         self.loc = np.full(len(vertices), -1, np.int64)
@@ -1247,12 +1254,13 @@ def _sorted_lookup(keys, missing=-1):
     return at
 
 
-def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values, *, rings=FIT_RINGS):
+def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values, *, rings=FIT_RINGS, extent=None):
     """Tile ``t``'s least-squares vertex values as :func:`tile_fit` solves them, from its
     surroundings alone: the tetrahedra that meet the box its solve may reach
     (:func:`fit_reach`; ``tets``, global point indices), each point's tetrahedron (``ptet``,
     a row of ``tets``, -1 for a vertex) and the data ``values`` over that box ``lo`` to
-    ``hi``, and the vertices of ``tets`` (ascending) with their data values.  The same
+    ``hi``, and the vertices of ``tets`` (ascending) with their data values; ``extent``, the
+    longest extent of ``tets`` along an axis, if known (:func:`mesh_meeting`).  The same
     values as the whole mesh's :func:`tile_fit`, to the bit.  Returns the tile's vertices
     (ascending) and their fitted values."""
     lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
@@ -1265,7 +1273,7 @@ def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values
 
     values = np.asarray(values, np.float64).reshape(-1)
     solver = _TileSolver(shape, cuts, tets, vertices, vertex_values, _sorted_lookup(vertices),
-                         lambda p: ptet[in_box(p)], lambda p: values[in_box(p)])
+                         lambda p: ptet[in_box(p)], lambda p: values[in_box(p)], extent)
     own = np.flatnonzero(tile_of(tuple(solver.vijk.T), cuts) == t)
     if len(own) == 0:
         return vertices[own], np.zeros(0)
