@@ -198,7 +198,7 @@ def test_the_normal_equations_over_many_chunks_are_those_of_one_sparse_sum_at_a_
     monkeypatch.setattr(fitting, "CHUNK", 16)
     monkeypatch.setattr(fitting, "_FOLD", 3)
     K, b = normal_equations(verts, w, f, vertices)
-    col = fitting._column_map(len(f), vertices)
+    col = fitting.column_map(len(f), vertices)
     m = len(vertices)
     diag, b_ref, off = np.zeros(m), np.zeros(m), sp.csr_matrix((m, m))
     for s in range(0, len(f), 16):

@@ -39,8 +39,9 @@ _PAIRS = ((0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3))
 _FOLD = 32
 
 
-def _column_map(n_points, vertices):
-    """Column of every original point in the fit (its index among ``vertices``), -1 for the others."""
+def column_map(n_points, vertices):
+    """Column of every original point in the fit (its index among ``vertices``), -1 for the
+    others: int32 while the vertices' count allows, so a grid-sized map takes 4 bytes a point."""
     dtype = np.int32 if len(vertices) < 2**31 else np.int64
     col = np.full(n_points, -1, dtype)
     col[vertices] = np.arange(len(vertices), dtype=dtype)
@@ -102,7 +103,7 @@ def normal_equations(verts, weights, values, vertices):
     f = np.asarray(values, float)
     vertices = np.asarray(vertices, np.int64)
     N, m = f.shape[0], len(vertices)
-    col = _column_map(N, vertices)
+    col = column_map(N, vertices)
     return _normal_equations(((*_chunk(verts, weights, col, s, min(s + CHUNK, N)), f[s:s + CHUNK])
                               for s in range(0, N, CHUNK)), m)
 
@@ -257,7 +258,7 @@ def fit_vertex_values(verts, weights, values, vertices):
     K, b = normal_equations(verts, weights, f, vertices)
     fitted, _ = solve_normal_equations(K, b, f[vertices])
     del K
-    col = _column_map(f.shape[0], vertices)
+    col = column_map(f.shape[0], vertices)
     residuals = np.empty_like(f)
     for s in range(0, f.shape[0], CHUNK):
         e = min(s + CHUNK, f.shape[0])

@@ -1321,11 +1321,12 @@ def tile_fit(shape, cuts, tets, ptet, vertices, values, *, rings=FIT_RINGS, tile
     (m,) float
         The fitted values at ``vertices`` (NaN at those of the tiles not solved).
     """
+    from ..fitting import column_map
+
     f = np.asarray(values, np.float64).reshape(-1)
     vertices = np.asarray(vertices, np.int64)
     m = len(vertices)
-    col = np.full(f.shape[0], -1, index_type(m))
-    col[vertices] = np.arange(m, dtype=col.dtype)
+    col = column_map(f.shape[0], vertices)
     counts = [len(c) - 1 for c in cuts]
     solver = _TileSolver(shape, cuts, tets, vertices, f[vertices], col.__getitem__, ptet.__getitem__, f.__getitem__)
     vt = tile_of(tuple(solver.vijk.T), cuts)
@@ -1378,11 +1379,11 @@ def reduce_in_blocks(data, target, *, block, tol_rms=None, tol_inf=None, values=
     r = f - value  # as the kernels computed the residuals they kept within tol_inf
     del value
     fit = None
-    if "fit" in values:  # tile by tile, as the last job of ``trivsel blocks`` fits
+    if "fit" in values:  # tile by tile, as the last jobs of ``trivsel blocks`` fit
+        from ..fitting import column_map
+
         fitted = tile_fit(data.shape, block_list(data.shape, block)[0], out["tets"], out["ptet"], out["vertices"], f)
-        col = np.full(N, -1, index_type(len(fitted)))
-        col[out["vertices"]] = np.arange(len(fitted), dtype=col.dtype)
-        fr = f - np.einsum("ij,ij->i", w, fitted[col[verts]])
+        fr = f - np.einsum("ij,ij->i", w, fitted[column_map(N, out["vertices"])[verts]])
         fit = {"vertices": out["vertices"], "values": fitted, "residuals": fr, "errors": error_norms(fr, interior)}
     del verts, w
     m = len(out["vertices"])
