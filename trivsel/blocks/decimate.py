@@ -699,16 +699,27 @@ def _vertex_values(out, plan, kind, vertices):
     """The values at ``vertices`` (ascending) that the ``tiles`` jobs (``kind`` "data") or the
     ``fit`` jobs ("fit") wrote, read from their tiles' tables one tile at a time."""
     tile = B.tile_of(np.unravel_index(vertices, plan.shape), plan.cuts)
-    ts = np.unique(tile)
+    order = np.argsort(tile, kind="stable")  # the vertices grouped by tile, sorted once
+    ts, starts = np.unique(tile[order], return_index=True)
+    ends = np.append(starts[1:], len(order))
+    del tile
     per = plan.counts[1] * plan.counts[2]
     folder, name = (out / TILES, "values") if kind == "data" else (out / "fit", "fitted")
     got = np.empty(len(vertices))
     with _Members(*(folder / f"{x}.npz" for x in sorted({int(t) // per for t in ts}))) as z:
-        for t in ts:
-            mine = np.flatnonzero(tile == t)
-            v = z[f"vertices_{t}"]
-            got[mine] = z[f"{name}_{t}"][np.searchsorted(v, vertices[mine])]
+        for t, a, b in zip(ts, starts, ends):
+            mine = order[a:b]
+            got[mine] = z[f"{name}_{t}"][np.searchsorted(z[f"vertices_{t}"], vertices[mine])]
     return got
+
+
+def _surroundings(out, plan, lo, hi):
+    """What a job needs around the box ``lo`` to ``hi``: the tetrahedra that meet it, each of
+    its points' tetrahedron, their longest extent (:func:`_neighbourhood`) and the corners of
+    those tetrahedra, ascending, with their data values."""
+    tets, _, ptet, ext = _neighbourhood(out, plan, lo, hi)
+    verts = np.unique(tets)
+    return tets, ptet, ext, (verts, _vertex_values(out, plan, "data", verts))
 
 
 def _fit(out, st, slab):
@@ -722,10 +733,9 @@ def _fit(out, st, slab):
     def fits():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.fit_reach(plan.shape, plan.cuts, t)
-            tets, _, ptet, ext = _neighbourhood(out, plan, lo, hi)
-            verts = np.unique(tets)
+            tets, ptet, ext, (verts, values) = _surroundings(out, plan, lo, hi)
             own, fitted = B.fit_tile(plan.shape, plan.cuts, t, tets, ptet, lo, hi, _read_box(vol, lo, hi), verts,
-                                     _vertex_values(out, plan, "data", verts), extent=ext)
+                                     values, extent=ext)
             yield {f"vertices_{t}": own, f"fitted_{t}": fitted}
 
     _atomic_savez_each(out / "fit" / f"{slab}.npz", fits())
@@ -745,9 +755,8 @@ def _pieces(out, st, slab):
     def results():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.tile_box(plan.shape, plan.cuts, t)
-            tets, _, ptet, _ = _neighbourhood(out, plan, lo, hi)
-            verts = np.unique(tets)
-            data_at = (verts, _vertex_values(out, plan, "data", verts))
+            tets, ptet, _, data_at = _surroundings(out, plan, lo, hi)
+            verts = data_at[0]
             pts = _box_ids(lo, hi, plan.shape)
             f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)
 
@@ -808,17 +817,20 @@ def _finish(out, st):
     write_pvtu(staged / "mesh.pvtu", pieces, overwrite=True, relative_to=out)
     if cfg.get("merged", True):
         T = np.empty((mesh["tetrahedra"], 4), B.index_type(N))
-        vertices = []
-        for slab in st.slabs:  # each tile's tetrahedra back to their rows
+        vertices, values = [], []
+        for slab in st.slabs:  # each tile's tetrahedra back to their rows, its vertices with their values
             with _Members(out / TILES / f"{slab}.npz") as z:
                 for t, _, _ in st.blocks_of(slab):
                     T[z[f"rows_{t}"]] = z[f"tets_{t}"]
                     vertices.append(z[f"vertices_{t}"])
-        vertices = np.sort(np.concatenate(vertices))
-        _write_mesh(staged / "mesh.vtu", _open(cfg), plan.shape, T,
-                    (vertices, _vertex_values(out, plan, "data", vertices)),
+                    values.append(z[f"values_{t}"])
+        vertices = np.concatenate(vertices)
+        order = np.argsort(vertices)  # the tiles partition the points: no vertex twice
+        vertices, values = vertices[order], np.concatenate(values)[order]
+        del order
+        _write_mesh(staged / "mesh.vtu", _open(cfg), plan.shape, T, (vertices, values),
                     (vertices, _vertex_values(out, plan, "fit", vertices)) if fit else None)
-        del T, vertices
+        del T, vertices, values
     tau, _ = _tau(out)
     target = st.target()
     m = int(mesh["vertices"])
