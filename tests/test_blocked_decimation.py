@@ -743,7 +743,11 @@ def test_a_tile_solved_from_its_surroundings_alone_is_the_whole_tile_fit(ridge_i
                                    shape).ravel()
         g = ptet[ids]
         assert np.array_equal(lptet == -1, g < 0) and np.array_equal(rows[lptet[g >= 0]], g[g >= 0])
-        verts = np.unique(tets)
+        verts, columns = np.unique(tets, return_inverse=True)
         own, got = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts], extent=ext)
         assert np.array_equal(own, out["vertices"][vtile == t]) and len(own)
         assert np.array_equal(got, whole[col[own]])
+        # with the corners' places among the vertices given, as the fit jobs give them
+        own2, got2 = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts], extent=ext,
+                              columns=columns.reshape(tets.shape))
+        assert np.array_equal(own2, own) and np.array_equal(got2, got)

@@ -430,9 +430,10 @@ def test_the_last_jobs_read_only_the_tiles_around_their_own(counted_run, monkeyp
     the samples of the box the tile's solve may reach, a ``pieces`` job those of the tile, and
     each reads the mesh of only the tiles that meet that box (and the values of the vertices
     of the tetrahedra it holds).  Run again while every read is recorded, they write the same
-    files, byte for byte."""
+    files, byte for byte, and so they do from tiles written without their tetrahedra's boxes
+    (a run begun before the tiles kept them)."""
+    from trivsel.blocks import _atomic_savez_each, read_config
     from trivsel.blocks import decimate as D
-    from trivsel.blocks import read_config
 
     out = counted_run
     st = D.Stages(*read_config(out))
@@ -466,9 +467,21 @@ def test_the_last_jobs_read_only_the_tiles_around_their_own(counted_run, monkeyp
                 assert np.array_equal(lo, want[0]) and np.array_equal(hi, want[1])
             meets = {u for lo, hi in mine for u in D.B.tiles_meeting(plan.cuts, lo, hi)}
             mesh = {int(key.split("_")[1]) for j, d, key in read if j == (kind, s) and d == "tiles"
-                    and key.split("_")[0] in ("tets", "rows", "owner")}
+                    and key.split("_")[0] in ("tets", "rows", "owner", "bmin", "bmax")}
             assert mesh and mesh <= meets
     assert len(meets) < len(plan.blocks())  # the last pieces job: a slab's tiles, not the whole mesh
+    for s in st.slabs:  # the tiles without the boxes: each job finds them from the tetrahedra
+        path = out / "tiles" / f"{s}.npz"
+        with np.load(path) as z:
+            kept = {k: z[k] for k in z.files if not k.startswith(("bmin_", "bmax_"))}
+            assert len(kept) < len(z.files)
+        _atomic_savez_each(path, [kept])
+    for name in files:
+        (out / name).unlink()
+    for kind in ("fit", "pieces"):
+        for s in st.slabs:
+            D.run_job(out, kind, str(s))
+    assert {name: (out / name).read_bytes() for name in files} == before
 
 
 @pytest.mark.slurm

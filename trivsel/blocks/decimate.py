@@ -646,9 +646,10 @@ def _region_apply(out, st, p, slab):
 def _tiles(out, st):
     """Merge the last pass and keep the mesh by tile (a block of the plan,
     :func:`trivsel.decimation.blocked.mesh_tiles`), one file per x-slab of tiles: each tile's
-    tetrahedra (every one whose corners' box meets the tile), their rows, the tetrahedron of
-    each of its points (-1 for a vertex), and its vertices with their values (read tile by
-    tile).  ``tiles/mesh.json`` holds the counts."""
+    tetrahedra (every one whose corners' box meets the tile), their rows, their corners' boxes
+    (:func:`trivsel.decimation.blocked.tet_boxes`, which the jobs after it filter by), the
+    tetrahedron of each of its points (-1 for a vertex), and its vertices with their values
+    (read tile by tile).  ``tiles/mesh.json`` holds the counts."""
     T, owner, isv, _ = _state(out, st, len(st.passes))
     plan = st.plan
     owner[isv] = -1
@@ -657,13 +658,16 @@ def _tiles(out, st):
     vol = _open(st.cfg)
     tiles = enumerate(B.mesh_tiles(plan.shape, plan.cuts, T, owner))
     per = plan.counts[1] * plan.counts[2]
+    box_type = np.int16 if max(plan.shape) <= np.iinfo(np.int16).max else np.int32
 
     def slab_of_tiles():  # one tile at a time, as they come
         for _ in range(per):
             t, (tets, rows, own) = next(tiles)
             lo, hi = B.tile_box(plan.shape, plan.cuts, t)
             at = np.flatnonzero(own < 0)
+            bmin, bmax = B.tet_boxes(plan.shape, tets)
             yield {f"tets_{t}": tets, f"rows_{t}": rows, f"owner_{t}": own,
+                   f"bmin_{t}": bmin.astype(box_type), f"bmax_{t}": bmax.astype(box_type),
                    f"vertices_{t}": _box_ids(lo, hi, plan.shape)[at],
                    f"values_{t}": np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)[at]}
 
@@ -682,8 +686,8 @@ def _neighbourhood(out, plan, lo, hi):
     def tiles(z):
         for t in ts:
             tets = z[f"tets_{t}"]
-            yield (tets, z[f"rows_{t}"], z[f"owner_{t}"], *B.tile_box(plan.shape, plan.cuts, t),
-                   B.tet_boxes(plan.shape, tets))
+            boxes = (z[f"bmin_{t}"], z[f"bmax_{t}"]) if f"bmin_{t}" in z else B.tet_boxes(plan.shape, tets)
+            yield (tets, z[f"rows_{t}"], z[f"owner_{t}"], *B.tile_box(plan.shape, plan.cuts, t), boxes)
 
     with _Members(*(out / TILES / f"{x}.npz" for x in sorted({t // per for t in ts}))) as z:
         return B.mesh_meeting(plan.shape, lo, hi, tiles(z))
@@ -715,11 +719,12 @@ def _vertex_values(out, plan, kind, vertices):
 
 def _surroundings(out, plan, lo, hi):
     """What a job needs around the box ``lo`` to ``hi``: the tetrahedra that meet it, each of
-    its points' tetrahedron, their longest extent (:func:`_neighbourhood`) and the corners of
-    those tetrahedra, ascending, with their data values."""
+    its points' tetrahedron, their longest extent (:func:`_neighbourhood`), the corners of
+    those tetrahedra, ascending, with their data values, and each corner's place among them
+    (the shape of the tetrahedra)."""
     tets, _, ptet, ext = _neighbourhood(out, plan, lo, hi)
-    verts = np.unique(tets)
-    return tets, ptet, ext, (verts, _vertex_values(out, plan, "data", verts))
+    verts, columns = np.unique(tets, return_inverse=True)
+    return tets, ptet, ext, (verts, _vertex_values(out, plan, "data", verts)), columns.reshape(tets.shape)
 
 
 def _fit(out, st, slab):
@@ -733,9 +738,9 @@ def _fit(out, st, slab):
     def fits():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.fit_reach(plan.shape, plan.cuts, t)
-            tets, ptet, ext, (verts, values) = _surroundings(out, plan, lo, hi)
+            tets, ptet, ext, (verts, values), columns = _surroundings(out, plan, lo, hi)
             own, fitted = B.fit_tile(plan.shape, plan.cuts, t, tets, ptet, lo, hi, _read_box(vol, lo, hi), verts,
-                                     values, extent=ext)
+                                     values, extent=ext, columns=columns)
             yield {f"vertices_{t}": own, f"fitted_{t}": fitted}
 
     _atomic_savez_each(out / "fit" / f"{slab}.npz", fits())
@@ -755,7 +760,7 @@ def _pieces(out, st, slab):
     def results():
         for t, _, _ in st.blocks_of(slab):
             lo, hi = B.tile_box(plan.shape, plan.cuts, t)
-            tets, ptet, _, data_at = _surroundings(out, plan, lo, hi)
+            tets, ptet, _, data_at, _ = _surroundings(out, plan, lo, hi)
             verts = data_at[0]
             pts = _box_ids(lo, hi, plan.shape)
             f = np.asarray(_read_box(vol, lo, hi), np.float64).reshape(-1)

@@ -1156,8 +1156,9 @@ class _TileSolver:
     data value.  The lookups are asked only for points in the box the solve may reach
     (:func:`fit_reach`) and, ``col_of``, for the corners of the tetrahedra."""
 
-    def __init__(self, shape, cuts, tets, vertices, vertex_values, col_of, ptet_of, f_of, ext=None):
+    def __init__(self, shape, cuts, tets, vertices, vertex_values, col_of, ptet_of, f_of, ext=None, columns=None):
         self.shape, self.cuts, self.tets = shape, cuts, tets
+        self.columns = columns  # the corners' places among the vertices, if known: no lookups for them
         self.vertices, self.fv = vertices, np.asarray(vertex_values, np.float64)
         self.col_of, self.ptet_of, self.f_of = col_of, ptet_of, f_of
         self.vijk = np.stack(_grid_coordinates(vertices, shape), axis=1)
@@ -1171,6 +1172,12 @@ class _TileSolver:
         self.touched = np.zeros(len(tets), bool)  # both reset after each tile
         self.unknown = np.zeros(len(vertices), bool)
         self.loc = np.full(len(vertices), -1, np.int64)
+
+    def corner_columns(self, rows):
+        """The places among the vertices of the corners of the tetrahedra ``rows``, (k, 4) int64."""
+        if self.columns is not None:
+            return np.asarray(self.columns[rows], np.int64)
+        return np.asarray(self.col_of(self.tets[rows]), np.int64).reshape(-1, 4)
 
     def around(self, lo, hi):
         """The tetrahedra with a corner in the box [lo, hi], and maybe some more."""
@@ -1200,7 +1207,7 @@ class _TileSolver:
             more = more[~touched[more]]
             touched[rows] = False
             rows = np.concatenate([rows, more])
-            ct = np.concatenate([ct, np.asarray(self.col_of(tets[more]), np.int64).reshape(-1, 4)])
+            ct = np.concatenate([ct, self.corner_columns(more)])
             hit = unknown[ct].any(axis=1)
             if ring == rings:
                 rows = rows[hit]
@@ -1223,12 +1230,17 @@ class _TileSolver:
         inside = owner >= 0
         keep = np.zeros(len(pts), bool)
         keep[inside] = touched[owner[inside]]
-        keep[~inside] = unknown[self.col_of(pts[~inside])]
+        vcol = np.asarray(self.col_of(pts[~inside]), np.int64)  # the vertices among the points
+        keep[~inside] = unknown[vcol]
+        vcol = vcol[keep[~inside]]
         pts, owner = pts[keep], owner[keep]
         touched[rows] = False
         loc[u] = np.arange(len(u))
-        verts, w = weights_in(shape, tets, owner, pts)
-        cv = np.asarray(self.col_of(verts), np.int64).reshape(verts.shape)
+        _, w = weights_in(shape, tets, owner, pts)
+        cv = np.empty((len(pts), 4), np.int64)  # the columns of each point's weights
+        inside = owner >= 0
+        cv[inside] = self.corner_columns(owner[inside])
+        cv[~inside] = vcol[:, None]
         lc = loc[cv]
         fixed = (lc < 0) & (w > 0)
         rhs = self.f_of(pts) - np.einsum("ij,ij->i", np.where(fixed, w, 0.0), self.fv[cv])
@@ -1254,15 +1266,17 @@ def _sorted_lookup(keys, missing=-1):
     return at
 
 
-def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values, *, rings=FIT_RINGS, extent=None):
+def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values, *, rings=FIT_RINGS, extent=None,
+             columns=None):
     """Tile ``t``'s least-squares vertex values as :func:`tile_fit` solves them, from its
     surroundings alone: the tetrahedra that meet the box its solve may reach
     (:func:`fit_reach`; ``tets``, global point indices), each point's tetrahedron (``ptet``,
     a row of ``tets``, -1 for a vertex) and the data ``values`` over that box ``lo`` to
     ``hi``, and the vertices of ``tets`` (ascending) with their data values; ``extent``, the
-    longest extent of ``tets`` along an axis, if known (:func:`mesh_meeting`).  The same
-    values as the whole mesh's :func:`tile_fit`, to the bit.  Returns the tile's vertices
-    (ascending) and their fitted values."""
+    longest extent of ``tets`` along an axis, if known (:func:`mesh_meeting`), and the places
+    of their corners among ``vertices`` (``columns``, the shape of ``tets``; the inverse of
+    :func:`numpy.unique`), if known.  The same values as the whole mesh's :func:`tile_fit`, to
+    the bit.  Returns the tile's vertices (ascending) and their fitted values."""
     lo, hi = np.asarray(lo, np.int64), np.asarray(hi, np.int64)
     dims = hi - lo + 1
     vertices = np.asarray(vertices, np.int64)
@@ -1273,7 +1287,7 @@ def fit_tile(shape, cuts, t, tets, ptet, lo, hi, values, vertices, vertex_values
 
     values = np.asarray(values, np.float64).reshape(-1)
     solver = _TileSolver(shape, cuts, tets, vertices, vertex_values, _sorted_lookup(vertices),
-                         lambda p: ptet[in_box(p)], lambda p: values[in_box(p)], extent)
+                         lambda p: ptet[in_box(p)], lambda p: values[in_box(p)], extent, columns)
     own = np.flatnonzero(tile_of(tuple(solver.vijk.T), cuts) == t)
     if len(own) == 0:
         return vertices[own], np.zeros(0)
