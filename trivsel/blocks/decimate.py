@@ -27,7 +27,7 @@ one stage hands the next is a file in the run's folder::
                        points inside them
     tiles/X.npz        after the last pass, the mesh kept by tile (a block of the plan) for
                        x-slab X of tiles: each tile's tetrahedra (every one that meets it),
-                       their rows, and each of its points' tetrahedron,
+                       their rows and corners' boxes, each of its points' tetrahedron,
                        and its vertices with their values; tiles/mesh.json the counts
     fit/X.npz          the fitted values of the vertices of slab X's tiles (with ``fit``)
     sums/X.npz         the errors at the points of slab X's tiles, as sums; beside it each
