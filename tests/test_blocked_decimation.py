@@ -751,3 +751,15 @@ def test_a_tile_solved_from_its_surroundings_alone_is_the_whole_tile_fit(ridge_i
         own2, got2 = fit_tile(shape, cuts, t, tets, lptet, lo, hi, f[ids], verts, f[verts], extent=ext,
                               columns=columns.reshape(tets.shape))
         assert np.array_equal(own2, own) and np.array_equal(got2, got)
+
+
+def test_grid_coordinates_are_kept_in_the_least_type_that_holds_them():
+    """The tiles keep their tetrahedra's boxes as grid coordinates: int16 up to an edge of 32768
+    points (coordinates to 32767), int32 beyond, so no coordinate wraps."""
+    from trivsel.decimation.blocked import coordinate_type
+
+    assert coordinate_type((32768, 5, 5)) is np.int16 and coordinate_type((5, 32768, 5)) is np.int16
+    assert coordinate_type((5, 5, 32769)) is np.int32 and coordinate_type((40000, 40000, 2)) is np.int32
+    for n in (32768, 32769):
+        t = coordinate_type((n, 2, 2))
+        assert int(np.array(n - 1).astype(t)) == n - 1

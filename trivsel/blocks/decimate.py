@@ -658,7 +658,7 @@ def _tiles(out, st):
     vol = _open(st.cfg)
     tiles = enumerate(B.mesh_tiles(plan.shape, plan.cuts, T, owner))
     per = plan.counts[1] * plan.counts[2]
-    box_type = np.int16 if max(plan.shape) <= np.iinfo(np.int16).max else np.int32
+    box_type = B.coordinate_type(plan.shape)
 
     def slab_of_tiles():  # one tile at a time, as they come
         for _ in range(per):

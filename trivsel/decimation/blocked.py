@@ -424,6 +424,12 @@ def index_type(n):
     return np.int32 if n < 2**31 else np.int64
 
 
+def coordinate_type(shape):
+    """The integer type of grid coordinates in a grid of ``shape`` (the tiles' boxes of their
+    tetrahedra): int16 while every coordinate fits, else int32."""
+    return np.int16 if max(int(n) for n in shape) - 1 <= np.iinfo(np.int16).max else np.int32
+
+
 def assemble(N, meshes, runmax=None, names=None):
     """The blocks' meshes (``(tets, inside, rows, n_removed)`` each, :func:`block_mesh`) as one
     mesh state: tetrahedra ``T``, each point's row of ``T`` (``owner``, -1 for vertices) and
