@@ -1045,21 +1045,20 @@ def tet_extent(shape, tets, chunk=1 << 20):
     widened by this much below, and all its corners in the box widened by this much."""
     ext = 0
     for s in range(0, len(tets), chunk):
-        ijk = _grid_coordinates(np.asarray(tets[s:s + chunk]).astype(np.int64).ravel(), shape)
-        ext = max([ext] + [int(np.ptp(x.reshape(-1, 4), axis=1).max()) for x in ijk])
+        bmin, bmax = tet_boxes(shape, tets[s:s + chunk])
+        ext = max(ext, int((bmax - bmin).max()))
     return ext
 
 
 def _tile_span(shape, cuts, tets):
     """For each tetrahedron, along each axis, the first and last tile its corners' box meets:
     ``(lo, hi)``, two (k, 3) arrays."""
-    ijk = _grid_coordinates(np.asarray(tets, np.int64).ravel(), shape)
+    bmin, bmax = tet_boxes(shape, tets)
     lo, hi = [], []
     for a in range(3):
         c = np.asarray(cuts[a], np.int64)
-        x = ijk[a].reshape(-1, 4)
-        lo.append(np.clip(np.searchsorted(c, x.min(axis=1), side="right") - 1, 0, len(c) - 2))
-        hi.append(np.clip(np.searchsorted(c, x.max(axis=1), side="right") - 1, 0, len(c) - 2))
+        lo.append(np.clip(np.searchsorted(c, bmin[:, a], side="right") - 1, 0, len(c) - 2))
+        hi.append(np.clip(np.searchsorted(c, bmax[:, a], side="right") - 1, 0, len(c) - 2))
     return np.stack(lo, axis=1), np.stack(hi, axis=1)
 
 
