@@ -17,7 +17,8 @@ from trivsel.data import grid_from_array, sample_grid
 from trivsel.decimation import reduce_by_collapse
 from trivsel.decimation.blocked import (SSE_SHARE, block_cuts, cut_counts, cut_quota, decimate_in_blocks, quality_note,
                                         quota_limit, running_sse, short_blocks, sse_at, streamed_cut_counts,
-                                        streamed_threshold, threshold, tied_counts, tile_fit, tile_of)
+                                        streamed_cut_quota, streamed_kth_cost, streamed_threshold, threshold,
+                                        tied_counts, tile_fit, tile_of)
 from trivsel.selection import count_for_fraction
 
 from conftest import examples
@@ -497,7 +498,7 @@ def test_the_grid_weights_of_a_mesh_are_the_decimations_own_bit_for_bit():
 def test_the_quota_limit_of_records_to_the_share_is_that_of_whole_records():
     """Records cut at a cap give the limit of records to the whole cap once the regions whose
     record ends at or below the limit are recorded again; without that, the limit differs."""
-    from trivsel.decimation.blocked import limit_of_whole_records, quota_limit, short_regions
+    from trivsel.decimation.blocked import limit_of_whole_records, quota_limit, record_ends, short_regions
 
     rng = np.random.default_rng(4)
     whole = [np.sort(rng.exponential(s, 60)) for s in (1.0, 0.2, 3.0, 0.5)]
@@ -507,16 +508,19 @@ def test_the_quota_limit_of_records_to_the_share_is_that_of_whole_records():
     assert quota_limit(cut, surplus, share) != quota_limit(whole, surplus, share)
     asked = []
 
+    runmax = list(cut)
+
     def again(ks):
         asked.append(list(ks))
-        return (whole[k] for k in ks)
+        for k in ks:
+            runmax[k] = whole[k]
 
-    runmax = list(cut)
-    limit, recorded = limit_of_whole_records(runmax, surplus, share, caps, whole_caps, again)
+    limit, recorded = limit_of_whole_records(lambda: ((r, r) for r in runmax), surplus, share, caps, whole_caps,
+                                             again)
     assert limit == quota_limit(whole, surplus, share)
     assert recorded == [k for k in range(4) if caps[k] < 60 and cut[k][-1] <= quota_limit(cut, surplus, share)]
     assert 0 < len(recorded) < 3 and len(asked) == 1  # the one whose record ends past the limit is not
-    assert short_regions(runmax, [60] * 4, whole_caps, limit) == []
+    assert short_regions(record_ends(lambda: ((r, r) for r in runmax)), [60] * 4, whole_caps, limit) == []
 
 
 def test_the_first_quota_pass_recorded_to_the_share_gives_the_mesh_of_records_to_twice_it(monkeypatch):
@@ -582,6 +586,55 @@ def test_the_streamed_cut_is_the_cut_of_records_held_whole(blocks, runs, queries
     if np.isfinite(tau):
         counts = cut_counts(runmax, tau, inner, seam, target)
         assert streamed_cut_counts(read, tau, inner, seam, target, tied_counts) == (counts, sse_at(sse, counts))
+
+
+def quota_cut_held_whole(runmax, sse, surplus, budget, limit):
+    """The quota cut of every region's record held at once: its collapses by cost, then region,
+    then place (a stable sort), none above ``limit``, the first ``surplus`` of them, and of those
+    the longest prefix whose squared error (each region's at its count, summed in region order:
+    :func:`sse_at`) fits in ``budget``."""
+    rm = [r[:np.searchsorted(r, limit, side="right")] for r in runmax]
+    value = np.concatenate(rm + [np.zeros(0)])
+    region = np.repeat(np.arange(len(rm)), [len(r) for r in rm])
+    order = np.lexsort((region, value))[:surplus]
+
+    def counts(n):
+        return np.bincount(region[order[:n]], minlength=len(rm)).tolist()
+
+    n = len(order)
+    if budget < np.inf:
+        n = next((k - 1 for k in range(len(order) + 1) if sse_at(sse, counts(k)) > budget), n)
+    return counts(n), sse_at(sse, counts(n))
+
+
+@settings(max_examples=examples(2.0), deadline=None)
+@given(recorded_blocks(), st.integers(1, 12), st.integers(1, 6), st.data())
+def test_the_streamed_quota_cut_is_the_cut_of_records_held_whole(regions, runs, queries, data):
+    """The quota job reads the regions' records one at a time, keeping a sample of at most about
+    ``runs`` of them and counting ``queries`` costs a stream: the quota limit (the k-th cheapest
+    cost) and the quota cut (the counts and the squared error they add, with and without a
+    surplus, a limit and a budget) are those of every record held at once, whatever the ties and
+    empty records; so is ``cut_quota``, which the passes in one process call."""
+    runmax, sse, *_ = regions
+    total = sum(len(r) for r in runmax)
+    surplus = data.draw(st.none() | st.integers(1, total + 5))
+    costs = sorted({float(c) for r in runmax for c in r})
+    limit = data.draw(st.just(np.inf) | (st.sampled_from(costs) if costs else st.just(np.inf)))
+    most = sum(float(s[-1]) for s in sse if len(s))
+    budget = data.draw(st.just(np.inf) | st.floats(0.0, 1.2).map(lambda f: f * most))
+
+    def read():
+        return zip(runmax, sse)
+
+    counts, spent = quota_cut_held_whole(runmax, sse, surplus, budget, limit)
+    got = streamed_cut_quota(read, surplus, budget, limit, runs=runs, queries=queries)
+    assert (list(got[0]), got[1]) == (counts, spent)
+    held = cut_quota(runmax, surplus, sse, budget, limit)
+    assert held[0].tolist() == counts and held[1] == spent
+    for k in (1, 2, total // 2, total, total + 1):
+        share = k / max(total, 1)
+        assert streamed_kth_cost(read, int(np.ceil(share * total)), runs=runs, queries=queries) == \
+            quota_limit(runmax, total, share)
 
 
 def test_a_stream_keeps_a_bounded_sample_of_the_records():

@@ -231,7 +231,7 @@ def test_the_plan_and_the_job_memory_come_from_the_configuration(tmp_path, capfd
 
 def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, monkeypatch):
     """A local run is refused when any of its jobs needs more than is available, ``quota`` (a
-    region's decimation and the regions' costs) and ``cut`` as well as the others; the block
+    region's decimation and a sample of the regions' costs) and ``cut`` as well as the others; the block
     size it names runs every job within what is available."""
     import trivsel.resources as res
     from trivsel.blocks import decimate as D
@@ -246,7 +246,7 @@ def test_the_memory_check_weighs_every_kind_of_job_of_the_run(tmp_path, capsys, 
     assert max(mb, key=mb.get) == "quota"
     avail = (max(v for k, v in mb.items() if k != "quota") + mb["quota"]) // 2 * 2**20  # all but quota fit
     monkeypatch.setattr(res, "available_bytes", lambda: avail)
-    with pytest.raises(InputError, match=r"^a quota job of decimate in blocks of 64 needs about 2.5\d* GiB, more than "
+    with pytest.raises(InputError, match=r"^a quota job of decimate in blocks of 64 needs about 2.4\d* GiB, more than "
                                          r"the 2.4\d* GiB available: use --block 48$"):
         D.check_job_memory(full)
     p48 = D.plan_decimation(shape, 48)
@@ -326,7 +326,6 @@ def test_the_cut_job_reads_the_blocks_records_one_at_a_time(counted_run, tmp_pat
     sample cut to a few runs a block it reads the costs files in several streams, one block's
     arrays at a time, and writes the same ``tau.json``, byte for byte (a count and a budget)."""
     from trivsel.blocks import decimate as D
-    from trivsel.decimation import streamcut
 
     for stop in (["--count", "3000"], ["--tol-rms", "0.002"]):
         out = counted_run if stop[0] == "--count" else tmp_path / stop[0][2:]
@@ -335,28 +334,37 @@ def test_the_cut_job_reads_the_blocks_records_one_at_a_time(counted_run, tmp_pat
                          "--out", str(out), "-c", "2", "--", "--notemp"]) == 0
             capsys.readouterr()
         before = (out / "tau.json").read_bytes()
-        reads, held = [], []
-        load = np.load
-
-        def spy(path, *a, **k):  # every costs file opened, and what is open at once
-            z = load(path, *a, **k)
-            if Path(path).parent.name == "costs":
-                reads.append(Path(path).name)
-            return z
-
-        monkeypatch.setattr(D.np, "load", spy)
-        monkeypatch.setattr(streamcut, "RUNS", 1)
-        monkeypatch.setattr(streamcut, "QUERIES", 2)
-        sample = streamcut._stream_sample
-        monkeypatch.setattr(streamcut, "_stream_sample",
-                            lambda *a: held.append(out_ := sample(*a)) or out_)
-        D.run_job(out, "cut")
-        monkeypatch.undo()
+        reads, samples = _with_small_samples(monkeypatch, out, "cut")
         assert (out / "tau.json").read_bytes() == before
         streams = reads.count("0.npz")
         assert streams > 4 and all(reads.count(f"{s}.npz") == streams for s in range(3))
         blocks = len(D.Stages(*D.read_config(out)).plan.blocks())
-        assert all(len(cat["cost"]) <= 2 * 4 * blocks for h, _ in held for cat, *_ in h)
+        assert all(n <= 2 * 4 * blocks for n in samples)
+
+
+def _with_small_samples(monkeypatch, out, kind, item=""):
+    """Job ``kind`` (``item``) of run ``out`` run with the streamed cuts' sample cut to one run
+    (so at least 4 a block or region) and 2 queries a stream: the names of the costs files it
+    opened (an entry an opening) and the size of each sample its streams kept."""
+    from trivsel.blocks import decimate as D
+    from trivsel.decimation import streamcut
+
+    reads, held = [], []
+    load, sample = np.load, streamcut._stream_sample
+
+    def spy(path, *a, **k):  # every costs file opened
+        z = load(path, *a, **k)
+        if Path(path).parent.name == "costs":
+            reads.append(Path(path).name)
+        return z
+
+    with monkeypatch.context() as m:
+        m.setattr(D.np, "load", spy)
+        m.setattr(streamcut, "RUNS", 1)
+        m.setattr(streamcut, "QUERIES", 2)
+        m.setattr(streamcut, "_stream_sample", lambda *a: held.append(out_ := sample(*a)) or out_)
+        D.run_job(out, kind, item)
+    return reads, [len(cat["cost"]) for h, _ in held for cat, *_ in h]
 
 
 def _quota_pass_run(out):
@@ -423,6 +431,41 @@ def test_region_and_quota_jobs_read_only_their_part_of_the_pass(counted_run, mon
     for name, z in before.items():
         now = D._load(folder / name)
         assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
+
+
+def test_the_quota_job_reads_the_regions_records_one_at_a_time(counted_run, monkeypatch):
+    """The quota job holds a sample of the regions' recorded costs, not every record: with the
+    sample cut to a few runs a region, every quota job of the counted run (the first derives
+    the quota passes' limit, the others cut at it) reads its pass's costs files in several
+    streams, one region's arrays at a time, and writes the same quotas, squared error and limit,
+    also where it records regions again (``again.npz``, the first records cut to 16 collapses)."""
+    D, out, st, first, _ = _quota_pass_run(counted_run)
+    passes = [p for p, (kind, _) in enumerate(st.passes)
+              if kind == "quota" and D._load(out / "passes" / str(p) / "plan.npz")["ran"]]
+    assert first in passes and len(passes) > 1
+    monkeypatch.setattr(D.B, "FIRST_QUOTA_RECORD", 0)
+    for p in range(first, len(st.passes)):  # the first quota pass's regions recorded to 16 collapses
+        for kind in ("step", "rcosts", "quota", "apply"):
+            for item in [f"{p}_{s}" for s in st.region_slabs(p)] if kind in ("rcosts", "apply") else [str(p)]:
+                D.run_job(out, kind, item)
+    assert any(k.startswith("runmax_") for k in D._load(out / "passes" / str(first) / "again.npz"))
+    streams, samples = [], []
+    for p in passes:
+        folder = out / "passes" / str(p)
+        before = {name: D._load(folder / name) for name in ("quota.npz", "again.npz")}
+        reads, sizes = _with_small_samples(monkeypatch, out, "quota", str(p))
+        for name, z in before.items():
+            now = D._load(folder / name)
+            assert z.keys() == now.keys() and all(np.array_equal(z[k], now[k], equal_nan=True) for k in z), name
+        slabs = st.region_slabs(p)
+        streams.append(reads.count(f"{slabs[0]}.npz"))
+        assert all(reads.count(f"{s}.npz") == streams[-1] for s in slabs)
+        regions = len(D._load(folder / "plan.npz")["region"])
+        assert all(n <= 2 * 4 * regions for n in sizes)
+        samples.append(len(sizes))
+        assert not (folder / "again").exists()
+    # the first derives the limit from a sample; a later one cuts its surplus below the limit from one
+    assert streams[0] > 4 and samples[0] > 0 and any(n > 4 and k > 0 for n, k in zip(streams[1:], samples[1:]))
 
 
 def test_the_last_jobs_read_only_the_tiles_around_their_own(counted_run, monkeypatch):

@@ -42,17 +42,18 @@ regions one at a time: it reads each one's part of its input files (``_Members``
 its file one block or region at a time (``_atomic_savez_each``), so that its memory is that of
 one block or region, not of the slab. The cut job reads the blocks' records one block at a
 time, a few times over, and keeps a bounded sample of their costs
-(:mod:`trivsel.decimation.streamcut`). The fit and pieces jobs hold one tile's surroundings at
-a time: the samples of the box its solve may reach (fit) or of the tile (pieces), the
-tetrahedra that meet that box and their corners' values. Only the step, quota and tiles jobs
-hold arrays over the whole grid (owners and flags per point, the tetrahedra, the regions'
-recorded costs), never a decimation of it; the last job holds a few numbers a tile, and the
-merged mesh when it writes one.
+(:mod:`trivsel.decimation.streamcut`); so does the quota job with the regions' records. The fit
+and pieces jobs hold one tile's surroundings at a time: the samples of the box its solve may
+reach (fit) or of the tile (pieces), the tetrahedra that meet that box and their corners'
+values. Only the step and tiles jobs hold arrays over the whole grid (owners and flags per
+point, the tetrahedra), never a decimation of it; the last job holds a few numbers a tile, and
+the merged mesh when it writes one.
 """
 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -349,6 +350,23 @@ def _block_record(vol, st, i, lo, hi, floor):
             f"sse_{i}": sse, f"short_{i}": np.bool_(short)}
 
 
+def _records(folder, files, again):
+    """The recorded costs of blocks or regions, one at a time: ``(runmax, sse)`` of each item
+    of ``files`` (pairs of a costs file's name in ``folder`` and its items, in order), read from
+    its own file where ``again`` names one (recorded again).  Of a costs file only those two
+    arrays are read, not the meshes beside them; zeros stand in for the errors of a run begun
+    before they were recorded (it has no budget)."""
+    for name, items in files:
+        with np.load(folder / f"{name}.npz", allow_pickle=False) as z:
+            for i in items:
+                if i in again:
+                    rec = _load(again[i], (f"runmax_{i}", f"sse_{i}"))
+                    yield rec[f"runmax_{i}"], rec[f"sse_{i}"]
+                    continue
+                r = z[f"runmax_{i}"]
+                yield r, (z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(r)))
+
+
 def _cut(out, st):
     """The threshold across the blocks' records, read one block at a time (each stream of
     :func:`trivsel.decimation.blocked.streamed_threshold` reads the costs files again): the job
@@ -374,16 +392,7 @@ def _cut(out, st):
     again = {}  # block -> its record to its end, in a file of its own
 
     def read():  # every block's (runmax, sse) in block order, one block at a time
-        for slab in st.slabs:
-            with np.load(out / "costs" / f"{slab}.npz", allow_pickle=False) as z:
-                for i, _, _ in st.blocks_of(slab):
-                    if i in again:
-                        rec = _load(again[i], (f"runmax_{i}", f"sse_{i}"))
-                        yield rec[f"runmax_{i}"], rec[f"sse_{i}"]
-                        continue
-                    r = z[f"runmax_{i}"]
-                    # a run started before the errors were recorded has no budget: zeros stand in
-                    yield r, (z[f"sse_{i}"] if f"sse_{i}" in z.files else np.zeros(len(r)))
+        return _records(out / "costs", [(slab, [i for i, _, _ in st.blocks_of(slab)]) for slab in st.slabs], again)
 
     seam_points = N - sum(inner)
     aim = B.aim(target, N, seam_points)
@@ -572,46 +581,51 @@ def _region_record(vol, st, plan, inp, r, cap):
 
 
 def _quota(out, st, p):
-    """The pass's quota cut.  The first quota pass derives the cost limit from its records; the
+    """The pass's quota cut, from the regions' records read one region at a time (each stream
+    of :func:`trivsel.decimation.streamcut.streamed_cut_quota` reads the costs files again): the
+    job holds a few numbers a region, one region's record and a bounded sample of costs, not
+    every region's record.  The first quota pass derives the cost limit from its records; the
     regions whose record stopped at its cap at or below the limit are recorded again to the
-    whole cap here, one at a time, into ``again.npz`` (which the apply jobs read after their
-    slab's costs file)."""
+    whole cap here, one at a time, each to a file of its own and then into ``again.npz`` (which
+    the apply jobs read after their slab's costs file)."""
     folder = out / "passes" / str(p)
     plan = _region_plan(folder)
-    runmax, sse = {}, {}
-    for slab in st.region_slabs(p):  # the costs, not the regions' meshes beside them
-        z = _load(folder / "costs" / f"{slab}.npz", lambda k: k.startswith(("runmax_", "sse_")))
-        runmax.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("runmax_")})
-        sse.update({int(k.split("_")[1]): v for k, v in z.items() if k.startswith("sse_")})
+    dims = st.region_dims(p)
     regions = [int(r) for r in plan["region"]]
-    q, added, again = np.zeros(0, np.int64), 0.0, {}
+    again_dir = folder / "again"
+    again = {}  # region -> its record to the whole cap, in a file of its own
+
+    def read():  # every region's (runmax, sse) in the plan's order, one region at a time
+        return _records(folder / "costs", [(slab, _slab_regions(plan, dims, slab)) for slab in st.region_slabs(p)],
+                        again)
+
+    q, added = np.zeros(0, np.int64), 0.0
     limit = float(plan.get("limit", float("nan")))
     limit = None if np.isnan(limit) else limit  # none derived yet
     if plan["ran"]:
-        sses = [sse.get(r, np.zeros(len(runmax[r]))) for r in regions]  # none in a run begun before they were
-        costs = [runmax[r] for r in regions]
         surplus = None if plan["surplus"] < 0 else int(plan["surplus"])
         kind, share = st.passes[p][0], float(plan.get("share", 1.0))
         if B.derives_limit(kind, surplus, limit) and len(plan.get("whole_caps", ())) == len(regions):
 
             def record_again(ks):  # to the whole cap, one at a time
-                vol, per = _open(st.cfg), int(np.prod(st.region_dims(p)[1:]))
+                vol, per = _open(st.cfg), int(np.prod(dims[1:]))
                 for k in ks:
                     r = regions[k]
                     z = _load(folder / "in" / f"{r // per}.npz", lambda name: name.endswith(f"_{r}"))  # its input
-                    rec = _region_record(vol, st, plan, _region_inputs(z)[1](r), r, int(plan["whole_caps"][k]))
-                    again.update(rec)
-                    sses[k] = rec[f"sse_{r}"]
-                    yield rec[f"runmax_{r}"]
+                    path = again_dir / f"{r}.npz"
+                    _atomic_savez(path, **_region_record(vol, st, plan, _region_inputs(z)[1](r), r,
+                                                         int(plan["whole_caps"][k])))
+                    again[r] = path
 
-            limit, _ = B.limit_of_whole_records(costs, surplus, share, plan["caps"], plan["whole_caps"],
-                                                record_again)
-        cut, limit = B.pass_limit(kind, surplus, limit, costs, share)
-        q, added = B.cut_quota(costs, surplus, sses, float(plan.get("budget", INF)), cut)
-    _atomic_savez(folder / "again.npz", **again)
+            limit, _ = B.limit_of_whole_records(read, surplus, share, plan["caps"], plan["whole_caps"], record_again)
+        cut, limit = B.pass_limit(kind, surplus, limit, read, share)
+        q, added = B.streamed_cut_quota(read, surplus, float(plan.get("budget", INF)), cut)
+    # the regions recorded again (most runs: none), one at a time into the file the apply jobs read
+    _atomic_savez_each(folder / "again.npz", (_load(again[r]) for r in sorted(again)))
     _atomic_savez(folder / "quota.npz", region=np.asarray(regions, np.int64), quota=np.asarray(q, np.int64),
                   spent=np.float64(float(plan.get("spent", 0.0)) + added),
                   limit=np.float64(float("nan") if limit is None else limit))
+    shutil.rmtree(again_dir, ignore_errors=True)  # its own files (and a killed attempt's)
 
 
 def _region_apply(out, st, p, slab):
@@ -920,9 +934,9 @@ def region_bytes(cfg, plan, points):
 
 def job_resources(cfg, plan, kind):
     """``(mem_mb, runtime_minutes)`` to request for a job of ``kind``: "costs" and "mesh"
-    (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "cut" (a
-    sample of the blocks' costs), "step", "quota", "finish" (arrays over the whole grid),
-    "kernels"."""
+    (a slab of blocks, one at a time), "rcosts" and "apply" (a slab of regions), "cut" and
+    "quota" (a sample of the blocks' or regions' costs), "step", "tiles", "finish" (arrays over
+    the whole grid), "fit" and "pieces" (a slab of tiles), "kernels"."""
     N = plan.n_points()
     block = int(cfg["block"])
     slab_pts = float(np.prod([max(np.diff(c)) + 1 for c in plan.cuts]))
@@ -955,8 +969,9 @@ def job_resources(cfg, plan, kind):
         mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * B.STREAM_RUNS + 64 * len(plan.blocks()) \
             + DECIMATION_BYTES_PER_POINT * slab_pts
         secs = 60 + 5e-5 * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
-    else:  # quota: the regions' costs, and a region recorded again
-        mem, secs = JOB_BASE_BYTES + 16 * N + region, 60 + 5e-5 * N
+    else:  # quota: a sample of the regions' costs, a few numbers a region, and a region recorded again
+        mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * B.STREAM_RUNS + 64 * (len(plan.blocks()) + 8) + region
+        secs = 60 + 5e-5 * N
     return int(np.ceil(mem / 2**20)), int(np.ceil(secs / 60))
 
 

@@ -70,13 +70,13 @@ import numpy as np
 from ..selection import count_for_fraction
 from . import EXACT_WITHIN, INF, LOCK_ALL, Decimation, lattice_interpolant, lattice_weights, new_mesh_state, new_state
 from .streamcut import RUNS as STREAM_RUNS
-from .streamcut import streamed_cut_counts, streamed_threshold
+from .streamcut import streamed_cut_counts, streamed_cut_quota, streamed_kth_cost, streamed_threshold
 
 __all__ = ["block_cuts", "block_list", "passes", "region_grid", "block_costs", "block_mesh", "aim", "threshold",
            "short_blocks", "threshold_of_whole_records", "cut_counts", "tied_counts", "streamed_threshold",
-           "streamed_cut_counts",
+           "streamed_cut_counts", "streamed_cut_quota", "streamed_kth_cost",
            "index_type", "sse_budget", "running_sse", "sse_at", "assemble", "pass_plan", "region_input",
-           "region_decimate", "cost_caps", "record_caps", "derives_limit", "short_regions",
+           "region_decimate", "cost_caps", "record_caps", "derives_limit", "short_regions", "record_ends",
            "limit_of_whole_records", "cut_quota", "quota_limit", "free_share", "pass_limit", "record_limit",
            "merge_pass",
            "decimate_in_blocks", "pass_runs",
@@ -580,27 +580,38 @@ def derives_limit(kind, surplus, limit):
     return kind == "quota" and surplus is not None and limit is None
 
 
-def short_regions(runmax, caps, whole, limit):
-    """The regions whose record (its running maxima) stopped at its cap (``caps``) short of the
-    ``whole`` one, at or below the cost ``limit``: past a record's end every cost is at least its
-    last, so the others' longer records would add only costs above the limit."""
-    return [k for k, (r, c, w) in enumerate(zip(runmax, caps, whole))
-            if c < w and len(r) == c and (not len(r) or r[-1] <= limit)]
+def short_regions(ends, caps, whole, limit):
+    """The regions whose record stopped at its cap (``caps``) short of the ``whole`` one, at or
+    below the cost ``limit`` (``ends``: each record's length and last running maximum, None for
+    an empty one): past a record's end every cost is at least its last, so the others' longer
+    records would add only costs above the limit."""
+    return [k for k, ((n, last), c, w) in enumerate(zip(ends, caps, whole))
+            if c < w and n == c and (last is None or last <= limit)]
 
 
-def limit_of_whole_records(runmax, surplus, share, caps, whole, record_again):
+def record_ends(read):
+    """Each record's length and last running maximum (None for an empty one), for
+    :func:`short_regions`, from ``read()`` (one ``(runmax, sse)`` per region)."""
+    return [(len(r), float(r[-1]) if len(r) else None) for r, _ in read()]
+
+
+def limit_of_whole_records(read, surplus, share, caps, whole, record_again):
     """:func:`quota_limit` of records cut at ``caps`` as of records to ``whole``: the regions that
-    :func:`short_regions` names are recorded again by ``record_again(regions)`` (their running
-    maxima, in order; ``runmax`` is updated in place) and the limit is taken again; once at most,
-    since the limit only falls.  Returns the limit and the regions recorded again."""
+    :func:`short_regions` names are recorded again by ``record_again(regions)``, after which
+    ``read()`` (one ``(runmax, sse)`` per region, in order, each time it is called) yields their
+    new records, and the limit is taken again; once at most, since the limit only falls.  The
+    records are read a region at a time (:func:`~trivsel.decimation.streamcut.streamed_kth_cost`).
+    Returns the limit and the regions recorded again."""
     caps, again_all = list(caps), []
+    k = int(np.ceil(float(share) * int(surplus)))
     while True:
-        limit = quota_limit(runmax, surplus, share)
-        again = short_regions(runmax, caps, whole, limit)
+        limit = streamed_kth_cost(read, k)
+        again = short_regions(record_ends(read), caps, whole, limit)
         if not again:
             return limit, again_all
-        for k, r in zip(again, record_again(again)):
-            runmax[k], caps[k] = r, whole[k]
+        record_again(again)
+        for j in again:
+            caps[j] = whole[j]
         again_all += again
 
 
@@ -610,20 +621,14 @@ def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
     ``surplus`` at most (None: no count) and, with a ``budget``, as many as the squared error
     they add (``sse``, :func:`running_sse` of each region) fits in: one threshold across the
     regions, as across the blocks, so each region's count is a prefix of its own sequence.
-    Returns the counts and the squared error they add."""
-    runmax = [r[:int(np.searchsorted(r, limit, side="right"))] for r in runmax]  # nondecreasing: a prefix
-    if sse is not None:  # the squared errors of the same prefixes, so that both index one concatenation
-        sse = [s[:len(r)] for s, r in zip(sse, runmax)]
-    value = np.concatenate(list(runmax) + [np.zeros(0)])
-    region = np.repeat(np.arange(len(runmax)), [len(r) for r in runmax])
-    take = np.lexsort((region, value))[:surplus]
-    spent = 0.0
-    if sse is not None:
-        add = np.concatenate([np.diff(s, prepend=0.0) for s in sse] + [np.zeros(0)])[take]
-        if budget < INF:
-            take = take[:int(np.searchsorted(np.cumsum(add) > budget, True))]  # the prefix within the budget
-        spent = float(add[:len(take)].sum())
-    return np.bincount(region[take], minlength=len(runmax)), spent
+    Returns the counts and the squared error they add (each region's at its count, summed in
+    region order; 0.0 without ``sse``).  The quota job finds the same, to the bit, from the
+    regions' records read one at a time
+    (:func:`~trivsel.decimation.streamcut.streamed_cut_quota`, which this calls)."""
+    errors = sse if sse is not None else [np.zeros(len(r)) for r in runmax]
+    counts, spent = streamed_cut_quota(lambda: zip(runmax, errors), surplus, budget if sse is not None else INF,
+                                       limit)
+    return np.asarray(counts, np.int64), (spent if sse is not None else 0.0)
 
 
 def quota_limit(runmax, surplus, share):
@@ -644,14 +649,15 @@ def free_share(plan, isv):
     return float(plan["nfree"].sum()) / max(int(isv.sum()), 1)
 
 
-def pass_limit(kind, surplus, limit, runmax, share):
+def pass_limit(kind, surplus, limit, read, share):
     """``(cut, kept)``: the cost limit of a pass's quota cut (:func:`cut_quota`) and the one the
     passes after it inherit.  With a count (``surplus`` not None) a ``"quota"`` pass cuts at the
     inherited ``limit``, or, while none is (None), derives it from its own recorded costs
-    (``runmax``) and its regions' ``share`` of the vertices (:func:`quota_limit`, :func:`free_share`);
-    every other pass cuts without one and hands the inherited limit on."""
+    (``read()``: one ``(runmax, sse)`` per region) and its regions' ``share`` of the vertices
+    (:func:`quota_limit`, read a region at a time; :func:`free_share`); every other pass cuts
+    without one and hands the inherited limit on."""
     if derives_limit(kind, surplus, limit):
-        limit = quota_limit(runmax, surplus, share)
+        limit = streamed_kth_cost(read, int(np.ceil(float(share) * int(surplus))))
     elif kind != "quota" or surplus is None:
         return INF, limit
     return limit, limit
@@ -884,18 +890,20 @@ def _region_pass(shape, T, owner, isv, cand, offset, size, tau, surplus, tol_inf
     if costed:
         sh["caps"], whole_caps = record_caps(plan, surplus, kind, limit)
         recorded = list(_map(_region_costs, runs, threads))
-        runmax = [r for r, _, _, _ in recorded]
+
+        def records():  # each region's running maxima and squared error, in order
+            return ((r, e) for r, e, _, _ in recorded)
+
         if derives_limit(kind, surplus, limit):  # from records as long as the later passes' (whole_caps)
             def record_again(regions):
                 sh["caps"] = whole_caps
                 for k, rec in zip(regions, _map(_region_costs, regions, threads)):
                     recorded[k] = rec
-                    yield rec[0]
 
-            limit, again = limit_of_whole_records(runmax, surplus, free_share(plan, isv), sh["caps"], whole_caps,
+            limit, again = limit_of_whole_records(records, surplus, free_share(plan, isv), sh["caps"], whole_caps,
                                                   record_again)
-        cut, limit = pass_limit(kind, surplus, limit, runmax, free_share(plan, isv))
-        sh["quota"], spent = cut_quota(runmax, surplus, [e for _, e, _, _ in recorded], budget, cut)
+        cut, limit = pass_limit(kind, surplus, limit, records, free_share(plan, isv))
+        sh["quota"], spent = cut_quota([r for r, _ in records()], surplus, [e for _, e in records()], budget, cut)
         whole = {k: res for k, (r, _, _, res) in enumerate(recorded) if sh["quota"][k] == len(r)}
         sh["recorded"] = {k: seq for k, (_, _, seq, _) in enumerate(recorded) if k not in whole}
         del recorded

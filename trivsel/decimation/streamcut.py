@@ -25,6 +25,13 @@ is what :func:`~trivsel.decimation.blocked.threshold`'s bisection over every dis
 finds, and the sums are taken in block order as there, so the results are the same, bit for
 bit.  A window holds at most ``RUNS * (1 / QUERIES + blocks / RUNS)`` of the last one's runs, so
 a few streams suffice even at 10^9 recorded collapses.
+
+The quota passes' cut across their regions (:func:`streamed_cut_quota`,
+:func:`streamed_kth_cost`) is found the same way: the k-th cheapest cost is the smallest where
+at least k are at or below it; the counts take every collapse below one cost and share the
+ties at it out region by region; and with a budget, the longest run of the cut's order whose
+squared error (each region's at its count, summed in region order) fits in it is found by the
+same search, then among the ties at the cost where it first does not fit.
 """
 
 from __future__ import annotations
@@ -39,7 +46,7 @@ RUNS = 1 << 17
 #: The costs of the sample whose counts the next stream finds exactly
 QUERIES = 256
 
-__all__ = ["streamed_threshold", "streamed_cut_counts", "RUNS", "QUERIES"]
+__all__ = ["streamed_threshold", "streamed_cut_counts", "streamed_kth_cost", "streamed_cut_quota", "RUNS", "QUERIES"]
 
 
 def _sums(counts, sse_terms):
@@ -236,3 +243,123 @@ def streamed_cut_counts(read, tau, inner, seam_points, target, cut_counts_of):
         if c > 0:
             total += s[c - 1]
     return counts, float(total)
+
+
+# --- the quota passes' cut across their regions (trivsel.decimation.blocked.cut_quota)
+
+
+def _least_runs(runs, regions):
+    """``RUNS`` (or ``runs``), and at least 4 runs a region, as :func:`streamed_threshold` keeps
+    at least 4 a block."""
+    return max(RUNS if runs is None else int(runs), 4 * regions)
+
+
+def _kth(read, k, lengths, runs, queries):
+    """:func:`streamed_kth_cost` of records of ``lengths``, ``runs`` resolved."""
+    if not 0 < k <= sum(lengths):
+        return INF
+    (cost, _, _), = _smallest_costs(read, [lambda n, _: n >= k], runs, queries)
+    return cost
+
+
+def streamed_kth_cost(read, k, *, runs=None, queries=None):
+    """The ``k``-th smallest recorded cost (1-based) of the sequences ``read()`` yields, one
+    ``(runmax, sse)`` per region (``sse`` is not used), or inf where fewer than ``k`` (or
+    ``k`` < 1) were recorded: the smallest cost at or below which ``k`` are, the value that
+    sorting them all would put at ``k - 1``, from a bounded sample."""
+    lengths = [len(r) for r, _ in read()]
+    return _kth(read, int(k), lengths, _least_runs(runs, len(lengths)), QUERIES if queries is None else int(queries))
+
+
+def _terms_at(read, counts):
+    """Each region's running squared error at its count (0.0 at none)."""
+    return np.array([float(s[c - 1]) if c > 0 else 0.0 for (_, s), c in zip(read(), counts)], np.float64)
+
+
+def _ties_taken(read, cost, wanted):
+    """Each region's count when ``wanted`` of the sequences' collapses are taken, cheapest first
+    and ties at ``cost`` (the cost of the last one taken) by region: every one below it, then
+    the ties region by region."""
+    lo, hi = [], []
+    for r, _ in read():
+        lo.append(int(np.searchsorted(r, cost, side="left")))
+        hi.append(int(np.searchsorted(r, cost, side="right")))
+    need, counts = int(wanted) - sum(lo), []
+    for a, b in zip(lo, hi):
+        t = min(b - a, need)
+        counts.append(a + t)
+        need -= t
+    return counts
+
+
+def _within_budget(read, budget, runs, queries):
+    """The longest run of the sequences' collapses in the cut's order (cost, then region, then
+    place in the region), whose squared error (each region's running one at its count, summed
+    in region order) is at most ``budget``, and the error: ``(counts, sse)``.  The error only
+    grows along that order (running maxima), so it is the longest whose every prefix fits."""
+    counts = [len(r) for r, _ in read()]
+    if budget < 0:  # not even none fits
+        return [0] * len(counts), 0.0
+    whole = _sums(counts, _terms_at(read, counts))[1]
+    if whole <= budget:
+        return counts, whole
+    (cost, _, _), = _smallest_costs(read, [lambda _, e: e > budget], runs, queries)
+    # every collapse below ``cost`` fits; of the ties at it, regions in order, the first that do
+    lo, hi, at_lo, at_hi = [], [], [], []
+    for r, s in read():  # each region's count and running squared error below the cost and at it
+        lo.append(int(np.searchsorted(r, cost, side="left")))
+        hi.append(int(np.searchsorted(r, cost, side="right")))
+        at_lo.append(float(s[lo[-1] - 1]) if lo[-1] > 0 else 0.0)
+        at_hi.append(float(s[hi[-1] - 1]) if hi[-1] > 0 else 0.0)
+    at_lo, at_hi = np.array(at_lo, np.float64), np.array(at_hi, np.float64)
+
+    def error(j, sse_j):  # regions before j with every tie, j at sse_j, the ones after it with none
+        terms = np.concatenate([at_hi[:j], [sse_j], at_lo[j + 1:]])
+        return float(np.cumsum(terms)[-1])
+
+    j = bisect.bisect_left(range(len(lo)), True, key=lambda j: error(j, at_hi[j]) > budget)
+    s_j = None
+    for k, (_, s) in enumerate(read()):  # region j's running squared error
+        if k == j:
+            s_j = np.asarray(s, np.float64)
+
+    def with_ties(q):  # region j's running squared error with q of its ties
+        return float(s_j[lo[j] + q - 1]) if lo[j] + q > 0 else 0.0
+
+    q = bisect.bisect_left(range(hi[j] - lo[j] + 1), True, key=lambda q: error(j, with_ties(q)) > budget) - 1
+    return hi[:j] + [lo[j] + q] + lo[j + 1:], error(j, with_ties(q))
+
+
+def streamed_cut_quota(read, surplus, budget=INF, limit=INF, *, runs=None, queries=None):
+    """:func:`trivsel.decimation.blocked.cut_quota` of the sequences ``read()`` yields, one
+    ``(runmax, sse)`` per region in region order each time it is called: how many collapses each
+    region makes, and the squared error they add.
+
+    The cut's order is by cost, then region, then place in the region; it takes none above
+    ``limit``, the first ``surplus`` (None: every one) and, with a ``budget``, the longest
+    prefix of those whose squared error fits in it.  That error is each region's running
+    squared error at its count, summed in region order (as the blocks' is,
+    :func:`~trivsel.decimation.blocked.sse_at`), so that a bounded sample of the sequences
+    finds it: each count is the prefix of its region's sequence below a cost, and the ties at
+    that cost are shared out region by region."""
+    queries = QUERIES if queries is None else int(queries)
+
+    def below_limit():  # each region's prefix at or below the limit
+        for r, s in read():
+            c = int(np.searchsorted(r, limit, side="right")) if limit < INF else len(r)
+            yield r[:c], s[:c]
+
+    counts = [len(r) for r, _ in below_limit()]
+    runs = _least_runs(runs, len(counts))
+    if surplus is not None and int(surplus) < sum(counts):
+        n = max(int(surplus), 0)
+        cost = _kth(below_limit, n, counts, runs, queries) if n else -INF
+        counts = _ties_taken(below_limit, cost, n)
+
+    def taken():
+        for (r, s), c in zip(below_limit(), counts):
+            yield r[:c], s[:c]
+
+    if budget < INF:
+        return _within_budget(taken, budget, runs, queries)
+    return counts, _sums(counts, _terms_at(taken, counts))[1]
