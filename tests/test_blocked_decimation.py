@@ -223,12 +223,19 @@ def test_identical_runs_give_identical_meshes_in_one_process_or_two():
     assert all(np.array_equal(a[k], b[k]) and np.array_equal(a[k], c[k]) for k in ("vertices", "tets", "ptet"))
 
 
+def held(runmax):
+    """Records held in memory, read as the quota job reads its files: one ``(runmax, sse)`` a
+    region, in order, each time it is called (no errors)."""
+    return lambda: ((r, np.zeros(len(r))) for r in runmax)
+
+
 def test_the_quota_passes_share_a_count_by_one_cost():
     """quota_limit: the ceil(share * surplus)-th cheapest of the first quota pass's recorded costs
     (inf when it recorded fewer); cut_quota takes nothing above it, a prefix of each region."""
     runmax = [np.array([1.0, 2.0, 5.0, 9.0]), np.array([0.5, 3.0, 3.0]), np.zeros(0)]
-    assert quota_limit(runmax, 10, 0.25) == 2.0  # the 3rd cheapest of 0.5, 1, 2, 3, 3, 5, 9
-    assert quota_limit(runmax, 10, 0.625) == 9.0 and quota_limit(runmax, 10, 0.75) == np.inf
+    read = held(runmax)
+    assert quota_limit(read, 10, 0.25) == 2.0  # the 3rd cheapest of 0.5, 1, 2, 3, 3, 5, 9
+    assert quota_limit(read, 10, 0.625) == 9.0 and quota_limit(read, 10, 0.75) == np.inf
     counts, _ = cut_quota(runmax, 10, limit=3.0)
     assert counts.tolist() == [2, 3, 0]
     assert cut_quota(runmax, 4, limit=3.0)[0].tolist() == [2, 2, 0]  # the surplus first, ties by region
@@ -505,7 +512,7 @@ def test_the_quota_limit_of_records_to_the_share_is_that_of_whole_records():
     caps, whole_caps = [20, 20, 20, 60], [60, 60, 60, 60]
     share, surplus = 0.5, 90
     cut = [w[:c] for w, c in zip(whole, caps)]
-    assert quota_limit(cut, surplus, share) != quota_limit(whole, surplus, share)
+    assert quota_limit(held(cut), surplus, share) != quota_limit(held(whole), surplus, share)
     asked = []
 
     runmax = list(cut)
@@ -515,12 +522,12 @@ def test_the_quota_limit_of_records_to_the_share_is_that_of_whole_records():
         for k in ks:
             runmax[k] = whole[k]
 
-    limit, recorded = limit_of_whole_records(lambda: ((r, r) for r in runmax), surplus, share, caps, whole_caps,
-                                             again)
-    assert limit == quota_limit(whole, surplus, share)
-    assert recorded == [k for k in range(4) if caps[k] < 60 and cut[k][-1] <= quota_limit(cut, surplus, share)]
+    limit, recorded = limit_of_whole_records(held(runmax), surplus, share, caps, whole_caps, again)
+    assert limit == quota_limit(held(whole), surplus, share)
+    assert recorded == [k for k in range(4)
+                        if caps[k] < 60 and cut[k][-1] <= quota_limit(held(cut), surplus, share)]
     assert 0 < len(recorded) < 3 and len(asked) == 1  # the one whose record ends past the limit is not
-    assert short_regions(record_ends(lambda: ((r, r) for r in runmax)), [60] * 4, whole_caps, limit) == []
+    assert short_regions(record_ends(held(runmax)), [60] * 4, whole_caps, limit) == []
 
 
 def test_the_first_quota_pass_recorded_to_the_share_gives_the_mesh_of_records_to_twice_it(monkeypatch):
@@ -611,8 +618,8 @@ def quota_cut_held_whole(runmax, sse, surplus, budget, limit):
 @given(recorded_blocks(), st.integers(1, 12), st.integers(1, 6), st.data())
 def test_the_streamed_quota_cut_is_the_cut_of_records_held_whole(regions, runs, queries, data):
     """The quota job reads the regions' records one at a time, keeping a sample of at most about
-    ``runs`` of them and counting ``queries`` costs a stream: the quota limit (the k-th cheapest
-    cost) and the quota cut (the counts and the squared error they add, with and without a
+    ``runs`` of them and counting ``queries`` costs a stream: the k-th cheapest cost (the quota
+    limit) and the quota cut (the counts and the squared error they add, with and without a
     surplus, a limit and a budget) are those of every record held at once, whatever the ties and
     empty records; so is ``cut_quota``, which the passes in one process call."""
     runmax, sse, *_ = regions
@@ -631,10 +638,10 @@ def test_the_streamed_quota_cut_is_the_cut_of_records_held_whole(regions, runs, 
     assert (list(got[0]), got[1]) == (counts, spent)
     held = cut_quota(runmax, surplus, sse, budget, limit)
     assert held[0].tolist() == counts and held[1] == spent
-    for k in (1, 2, total // 2, total, total + 1):
-        share = k / max(total, 1)
-        assert streamed_kth_cost(read, int(np.ceil(share * total)), runs=runs, queries=queries) == \
-            quota_limit(runmax, total, share)
+    every = np.sort(np.concatenate(runmax + [np.zeros(0)]))
+    for k in (0, 1, 2, total // 2, total, total + 1):
+        want = float(every[k - 1]) if 0 < k <= total else np.inf
+        assert streamed_kth_cost(read, k, runs=runs, queries=queries) == want
 
 
 def test_a_stream_keeps_a_bounded_sample_of_the_records():

@@ -599,13 +599,11 @@ def limit_of_whole_records(read, surplus, share, caps, whole, record_again):
     """:func:`quota_limit` of records cut at ``caps`` as of records to ``whole``: the regions that
     :func:`short_regions` names are recorded again by ``record_again(regions)``, after which
     ``read()`` (one ``(runmax, sse)`` per region, in order, each time it is called) yields their
-    new records, and the limit is taken again; once at most, since the limit only falls.  The
-    records are read a region at a time (:func:`~trivsel.decimation.streamcut.streamed_kth_cost`).
+    new records, and the limit is taken again; once at most, since the limit only falls.
     Returns the limit and the regions recorded again."""
     caps, again_all = list(caps), []
-    k = int(np.ceil(float(share) * int(surplus)))
     while True:
-        limit = streamed_kth_cost(read, k)
+        limit = quota_limit(read, surplus, share)
         again = short_regions(record_ends(read), caps, whole, limit)
         if not again:
             return limit, again_all
@@ -631,17 +629,16 @@ def cut_quota(runmax, surplus, sse=None, budget=INF, limit=INF):
     return np.asarray(counts, np.int64), (spent if sse is not None else 0.0)
 
 
-def quota_limit(runmax, surplus, share):
+def quota_limit(read, surplus, share):
     """The cost up to which the quota passes remove vertices, from the first quota pass's
-    recorded costs (``runmax``, each region's running maxima): the ``ceil(share * surplus)``-th
-    cheapest of them, ``share`` the part of the mesh's vertices that its regions free.  Where
-    costs are alike across the grid, that is the cost at which the passes together remove the
-    ``surplus``, each from its own grid's free vertices, so that no grid takes the count alone;
-    the rest passes take what is left, cheapest first.  Inf where the pass recorded fewer
-    (every pass may then take its cheapest)."""
-    k = int(np.ceil(float(share) * int(surplus)))
-    value = np.sort(np.concatenate(list(runmax) + [np.zeros(0)]))
-    return float(value[k - 1]) if 0 < k <= len(value) else INF
+    recorded costs (``read()``: each region's ``(runmax, sse)``, its running maxima, read a
+    region at a time): the ``ceil(share * surplus)``-th cheapest of them
+    (:func:`~trivsel.decimation.streamcut.streamed_kth_cost`), ``share`` the part of the mesh's
+    vertices that its regions free.  Where costs are alike across the grid, that is the cost at
+    which the passes together remove the ``surplus``, each from its own grid's free vertices, so
+    that no grid takes the count alone; the rest passes take what is left, cheapest first.  Inf
+    where the pass recorded fewer (every pass may then take its cheapest)."""
+    return streamed_kth_cost(read, int(np.ceil(float(share) * int(surplus))))
 
 
 def free_share(plan, isv):
@@ -654,10 +651,10 @@ def pass_limit(kind, surplus, limit, read, share):
     passes after it inherit.  With a count (``surplus`` not None) a ``"quota"`` pass cuts at the
     inherited ``limit``, or, while none is (None), derives it from its own recorded costs
     (``read()``: one ``(runmax, sse)`` per region) and its regions' ``share`` of the vertices
-    (:func:`quota_limit`, read a region at a time; :func:`free_share`); every other pass cuts
-    without one and hands the inherited limit on."""
+    (:func:`quota_limit`, :func:`free_share`); every other pass cuts without one and hands the
+    inherited limit on."""
     if derives_limit(kind, surplus, limit):
-        limit = streamed_kth_cost(read, int(np.ceil(float(share) * int(surplus))))
+        limit = quota_limit(read, surplus, share)
     elif kind != "quota" or surplus is None:
         return INF, limit
     return limit, limit
