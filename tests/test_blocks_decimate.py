@@ -367,6 +367,31 @@ def _with_small_samples(monkeypatch, out, kind, item=""):
     return reads, [len(cat["cost"]) for h, _ in held for cat, *_ in h]
 
 
+def test_a_killed_cut_or_quota_jobs_leftovers_do_not_stop_it_again(counted_run):
+    """The cut and quota jobs record blocks and regions again each into a file of its own, in a
+    folder of their own that they remove at the end.  A job killed while writing one leaves its
+    temporary file there; run again, the job ends as it would have, and leaves no such folder."""
+    from trivsel.blocks import decimate as D
+
+    out = counted_run
+    st = D.Stages(*D.read_config(out))
+    p = [kind for kind, _ in st.passes].index("quota")
+    folders = {"cut": out / "costs" / "again", "quota": out / "passes" / str(p) / "again"}
+    outputs = {"cut": out / "tau.json", "quota": out / "passes" / str(p) / "quota.npz"}
+    for kind, folder in folders.items():
+        before = D._load(outputs[kind]) if kind == "quota" else outputs[kind].read_bytes()
+        folder.mkdir()
+        (folder / ".trivsel-tmp-3-x1y2.npz").write_bytes(b"PK")  # half written
+        (folder / "3.npz").write_bytes(b"")  # written by the killed job, never read by this one
+        D.run_job(out, kind, "" if kind == "cut" else str(p))
+        assert not folder.exists()
+        if kind == "quota":
+            now = D._load(outputs[kind])
+            assert all(np.array_equal(before[k], now[k], equal_nan=True) for k in before)
+        else:
+            assert outputs[kind].read_bytes() == before
+
+
 def _quota_pass_run(out):
     """The counted run ``out`` (kept with its files): the jobs' module, the run's folder, its
     stages, the first quota pass and that pass's folder."""

@@ -415,10 +415,7 @@ def _cut(out, st):
     counts, sse = B.streamed_cut_counts(read, tau, inner, seam_points, target, B.tied_counts)
     _atomic_write_text(out / "tau.json", json.dumps({"tau": _number(tau), "target": target, "counts": counts,
                                                      "sse": sse, "recorded_again": len(recorded_again)}))
-    for path in again.values():
-        path.unlink()
-    if again_dir.exists():
-        again_dir.rmdir()
+    shutil.rmtree(again_dir, ignore_errors=True)  # its own files (and a killed attempt's)
 
 
 def _number(x):
