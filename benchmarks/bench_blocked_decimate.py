@@ -48,8 +48,9 @@ largest, as a process of its own under ``/usr/bin/time``: its peak memory (with 
 ``--requests FOLDER...`` reads finished runs (kept with ``--notemp``, or with ``--jobs ... --keep``)
 and prints, for each kind of job, the largest peak memory Snakemake's benchmark files recorded
 (``max_rss``, sampled: it can read low, short jobs always; a ``finish`` of 4.3 GB by ``/usr/bin/time``
-read 1.9 GB) beside the memory that kind of job requests
-(:func:`trivsel.blocks.decimate.job_resources`, with the code that ``PYTHONPATH`` names)::
+read 1.9 GB) beside the memory that kind of job requests, and the longest wall time beside its
+runtime request (:func:`trivsel.blocks.decimate.job_resources`, with the code that ``PYTHONPATH``
+names; on SLURM a job ends at its request)::
 
     python benchmarks/bench_blocked_decimate.py --requests RUN1 RUN2
 
@@ -265,26 +266,31 @@ def requests(folders):
     from trivsel.blocks.decimate import job_resources
 
     print("| run | points | tetrahedra after the blocks | kind | largest max_rss MB (item) | request MB | "
-          "request / peak |")
-    print("|---|---|---|---|---|---|---|")
+          "request / peak | longest s (item) | runtime request s | request / longest |")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for folder in map(Path, folders):
         cfg, plan = read_config(folder)
-        largest = {}
+        largest, longest = {}, {}
         for tsv in (folder / "benchmarks").rglob("*.tsv"):
             name = tsv.relative_to(folder / "benchmarks").with_suffix("")
             kind = name.parts[0].split("_")[0]
-            mb = float(tsv.read_text().splitlines()[1].split("\t")[2])
+            row = tsv.read_text().splitlines()[1].split("\t")
+            secs, mb, item = float(row[0]), float(row[2]), "/".join(name.parts[1:]) or "-"
             if mb >= largest.get(kind, (-1.0, ""))[0]:
-                largest[kind] = (mb, "/".join(name.parts[1:]) or "-")
+                largest[kind] = (mb, item)
+            if secs >= longest.get(kind, (-1.0, ""))[0]:
+                longest[kind] = (secs, item)
         state = folder / "passes" / "0" / "state.npz"
         tets = len(np.load(state)["T"]) if state.exists() else None
         points = json.loads((folder / "summary.json").read_text())["points"]
         for kind in ("costs", "cut", "mesh", "step", "rcosts", "quota", "apply", "tiles", "fit", "pieces", "finish"):
             if kind in largest:
                 mb, item = largest[kind]
-                req = job_resources(cfg, plan, kind)[0]
+                secs, slow = longest[kind]
+                req, minutes = job_resources(cfg, plan, kind)
                 print(f"| {folder.name} | {points:,} | {tets if tets is None else f'{tets:,}'} | {kind} | "
-                      f"{mb:.0f} ({item}) | {req} | {req / max(mb, 1.0):.1f} |", flush=True)
+                      f"{mb:.0f} ({item}) | {req} | {req / max(mb, 1.0):.1f} | {secs:.1f} ({slow}) | {60 * minutes} | "
+                      f"{60 * minutes / max(secs, 1.0):.1f} |", flush=True)
 
 
 def phases(source, block, fraction):

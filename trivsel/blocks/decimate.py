@@ -106,6 +106,10 @@ FIT_BYTES_PER_POINT = 100
 FIT_BYTES_PER_TET = 150
 PIECE_BYTES_PER_POINT = 60
 PIECE_BYTES_PER_TET = 60
+#: Seconds per point of a slab of blocks in pass 1 (``costs``, and ``mesh`` after it), for their runtime
+#: requests (SLURM ends a job at its request): on f4 at 257^3 in blocks of 64 a slab of 4.2 M points took up to
+#: 249 s (5.9e-5 a point) on a loaded machine and about 140 s on a quiet day (docs/notes); about 3x the larger
+BLOCK_SECONDS_PER_POINT = 2e-4
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
 #: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
@@ -940,7 +944,8 @@ def job_resources(cfg, plan, kind):
     region_pts = float(min(N, (B.REGION * block + 1) ** 3))
     region = region_bytes(cfg, plan, region_pts)
     if kind in ("costs", "mesh"):
-        mem, secs = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * slab_pts, 60 + 5e-5 * N / plan.counts[0]
+        mem = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * slab_pts
+        secs = 60 + BLOCK_SECONDS_PER_POINT * N / plan.counts[0]
     elif kind in ("rcosts", "apply"):
         mem, secs = JOB_BASE_BYTES + region, 60 + 5e-5 * N
     elif kind == "step":
@@ -965,7 +970,7 @@ def job_resources(cfg, plan, kind):
     elif kind == "cut":  # a sample of the blocks' costs, a few numbers a block, and a block recorded again
         mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * B.STREAM_RUNS + 64 * len(plan.blocks()) \
             + DECIMATION_BYTES_PER_POINT * slab_pts
-        secs = 60 + 5e-5 * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
+        secs = 60 + BLOCK_SECONDS_PER_POINT * N / plan.counts[0] + 2e-7 * N  # the costs files read a few times over
     else:  # quota: a sample of the regions' costs, a few numbers a region, and a region recorded again
         mem = JOB_BASE_BYTES + CUT_SAMPLE_BYTES_PER_RUN * B.STREAM_RUNS + 64 * (len(plan.blocks()) + 8) + region
         secs = 60 + 5e-5 * N
