@@ -110,6 +110,10 @@ PIECE_BYTES_PER_TET = 60
 #: requests (SLURM ends a job at its request): on f4 at 257^3 in blocks of 64 a slab of 4.2 M points took up to
 #: 249 s (5.9e-5 a point) on a loaded machine and about 140 s on a quiet day (docs/notes); about 3x the larger
 BLOCK_SECONDS_PER_POINT = 2e-4
+#: Seconds per point of a slab of regions (``rcosts``, ``apply``), for their runtime requests: f4 at 129^3 in
+#: blocks of 32 to 50 % took up to 41 s for a slab of 1.1 M points (3.8e-5 a point, the machine shared with
+#: CI), to 5 % at 257^3 in blocks of 64 up to 63 s for 8.5 M (docs/notes); about 4x the larger
+REGION_SECONDS_PER_POINT = 1.5e-4
 #: Bytes per run of the cut job's sample of costs (:mod:`trivsel.decimation.streamcut`: at most twice
 #: ``RUNS`` (``STREAM_RUNS`` of the block stages) runs of 40 bytes, with the temporaries of their sort)
 CUT_SAMPLE_BYTES_PER_RUN = 160
@@ -946,8 +950,9 @@ def job_resources(cfg, plan, kind):
     if kind in ("costs", "mesh"):
         mem = JOB_BASE_BYTES + DECIMATION_BYTES_PER_POINT * slab_pts
         secs = 60 + BLOCK_SECONDS_PER_POINT * N / plan.counts[0]
-    elif kind in ("rcosts", "apply"):
-        mem, secs = JOB_BASE_BYTES + region, 60 + 5e-5 * N
+    elif kind in ("rcosts", "apply"):  # a slab of regions is at most a region's width of x-planes
+        slab_of_regions = min(plan.shape[0], B.REGION * block + 1) * plan.shape[1] * plan.shape[2]
+        mem, secs = JOB_BASE_BYTES + region, 60 + REGION_SECONDS_PER_POINT * slab_of_regions
     elif kind == "step":
         mem = JOB_BASE_BYTES + STEP_BYTES_PER_POINT * N + STEP_BYTES_PER_TET * mesh_tets(cfg, plan)
         secs = 60 + 2e-6 * N
